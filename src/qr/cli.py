@@ -1,0 +1,174 @@
+"""The ``qr`` command.  Every user mistake ends in one line on stderr and exit status 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from .errors import EXIT_BAD_INPUT, QrInputError, QrInputWarning
+
+EXAMPLES = """\
+commands:
+  ingest     raw log -> canonical flight CSV/Parquet (validated)
+  synth      synthetic flight with hidden effects (flight.csv, vehicle.yaml, truth.json)
+  summary    per-flight table of ingested flights
+  diagnose   name what the nominal model gets wrong, extend it, measure the gain
+
+examples:
+  qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
+      --vehicle conf/vehicle/crazyflie21_brushless.yaml --out flight.csv
+  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 --rate 100 --seed 1 \\
+      --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01 --out synth1
+  qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
+  qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
+      --out summary.csv
+
+stages with Hydra configs (conf/): python -m qr.filter | qr.train | qr.simulate  (--help each)
+"""
+
+
+def _format_warning(message, category, filename, lineno, line=None):
+    if issubclass(category, QrInputWarning):
+        return f"qr: warning: {message}\n"
+    return f"{filename}:{lineno}: {category.__name__}: {message}\n"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
+                                "from measured flight logs.", epilog=EXAMPLES,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                              "--out flight.csv")
+    s.add_argument("src", help="raw log (canonical CSV or Crazyflie uSD binary)")
+    s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
+    s.add_argument("--out", required=True, help="output flight (.csv or .parquet)")
+    s.add_argument("--format", default="auto", choices=["auto", "csv", "cf-usd", "ulog", "rosbag"])
+
+    s = sub.add_parser("synth", help="synthetic flight with hidden effects",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 "
+                              "--rate 100 --seed 1 --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --out DIR\n"
+                              "effects: see ../shared/spec/diagnosis.md (qr.effects.CATALOG)")
+    s.add_argument("--vehicle", required=True, help="NOMINAL vehicle YAML (an extended one adds its effects)")
+    s.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
+    s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
+                   help="hidden effect in the TRUE plant (repeatable)")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--noise-free", action="store_true", help="log the true states without noise or dropouts")
+    s.add_argument("--position-noise", type=float, help="mocap position std, m (default 0.0005)")
+    s.add_argument("--attitude-noise", type=float, help="mocap attitude std, rad (default 0.003)")
+    s.add_argument("--rotor-noise", type=float, help="rotor speed std as a fraction of hover speed (default 0.01)")
+    s.add_argument("--dropout", type=float, help="fraction of mocap samples blank (default 0.005)")
+    s.add_argument("--low-passes", action="store_true", help="dip towards the floor every 12 s (ground effect)")
+    s.add_argument("--yaw-rate", type=float, default=0.0, help="constant yaw spin, rad/s")
+    s.add_argument("--v-max", type=float, default=2.5, help="peak horizontal speed, m/s")
+    s.add_argument("--tilt-max", type=float, default=25.0, help="peak tilt, degrees")
+
+    s = sub.add_parser("summary", help="table of ingested flights")
+    s.add_argument("flights", nargs="+")
+    s.add_argument("--vehicle", required=True)
+    s.add_argument("--out", required=True, help="CSV (a Markdown twin is written beside it)")
+
+    s = sub.add_parser("diagnose", help="name what the nominal model gets wrong (../shared/spec/diagnosis.md)")
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv")
+    s.add_argument("--vehicle", required=True)
+    s.add_argument("--out", required=True)
+    s.add_argument("overrides", nargs="*", default=[], help=argparse.SUPPRESS)
+    return p
+
+
+def _cmd_ingest(a):
+    from .ingest import ingest
+    from .vehicle import load_vehicle
+
+    vehicle = load_vehicle(a.vehicle)
+    df = ingest(a.src, vehicle, a.out, a.format)
+    print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
+
+
+def _cmd_synth(a):
+    from dataclasses import replace
+
+    from .effects import parse_effect_spec
+    from .sim.synth import NoiseConfig, SynthConfig, write_synth
+    from .sim.trajectory import TrajectoryConfig
+    from .vehicle import load_vehicle
+
+    vehicle = load_vehicle(a.vehicle)
+    effects = [parse_effect_spec(e) for e in a.effect]
+    for name, val in (("duration", a.duration), ("rate", a.rate)):
+        if not val > 0:
+            raise QrInputError(f"--{name}", f"{name} must be positive, got {val}", f"give a positive --{name}")
+    noise = NoiseConfig()
+    for field, val in (("position_std", a.position_noise), ("attitude_std", a.attitude_noise),
+                       ("rotor_std", a.rotor_noise), ("dropout", a.dropout)):
+        if val is not None:
+            noise = replace(noise, **{field: val})
+    traj = TrajectoryConfig(v_max=a.v_max, tilt_max_deg=a.tilt_max, yaw_rate=a.yaw_rate, low_passes=a.low_passes)
+    cfg = SynthConfig(duration=a.duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
+                      trajectory=traj)
+    meta = write_synth(a.out, vehicle, effects, cfg)
+    names = ", ".join(e["name"] for e in meta["effects"]) or "none"
+    print(f"{a.out}: {meta['samples']} samples at {a.rate:g} Hz, hidden effects: {names}")
+
+
+def _cmd_summary(a):
+    import pandas as pd
+
+    from .atomic import atomic_path, write_text
+    from .flight import read_flight
+    from .summary import flight_summary
+    from .vehicle import load_vehicle
+
+    vehicle = load_vehicle(a.vehicle)
+    rows = [flight_summary(read_flight(f), vehicle, Path(f).stem) for f in a.flights]
+    table = pd.DataFrame(rows)
+    with atomic_path(a.out) as tmp:
+        table.to_csv(tmp, index=False, float_format="%.6g")
+    write_text(Path(a.out).with_suffix(".md"), table.to_markdown(index=False, floatfmt=".4g") + "\n")
+
+
+def _cmd_diagnose(a):
+    from .diagnose import run_diagnosis
+
+    run_diagnosis(a.flights, a.vehicle, a.out, a.overrides)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    sys.stderr.write(_format_warning(message, category, filename, lineno))
+
+
+def main(argv: list[str] | None = None) -> int:
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        warnings.showwarning = _show_warning
+        return _main(argv)
+
+
+def _main(argv):
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    try:
+        {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary,
+         "diagnose": _cmd_diagnose}[args.command](args)
+    except QrInputError as e:
+        print(f"qr: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("qr: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,286 @@
+"""The effect catalog of ``../shared/spec/diagnosis.md``: one entry per effect.
+
+Every catalog term is linear in its parameters (gains through ``gain - 1``), so
+each effect is defined by its *design*: an array ``(N, 6, n_params)`` whose
+column ``j`` is the term added to ``[f_a; tau_a]`` (body frame) per unit of
+parameter ``j``.  ``term`` is the design times the parameters minus their
+neutral values.  The same design serves the diagnosis (regressors), the
+extended model (prediction) and the tests (expected residual of a hidden effect).
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .errors import QrInputError
+from .frames import GRAVITY, skew
+
+
+@dataclass
+class Signals:
+    """Body-frame kinematics and rotor speeds of the tracked point, one row per sample."""
+
+    R: np.ndarray  # (N, 3, 3) body -> world
+    v_b: np.ndarray  # (N, 3)
+    a_b: np.ndarray  # (N, 3)
+    omega: np.ndarray  # (N, 3)
+    alpha: np.ndarray  # (N, 3)
+    u: np.ndarray  # (N, 4) rotor speeds (vehicle unit)
+    u_dot: np.ndarray  # (N, 4)
+    p: np.ndarray  # (N, 3) tracked point, world
+
+    def __len__(self):
+        return len(self.u)
+
+    def take(self, idx) -> "Signals":
+        return Signals(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    params: tuple[str, ...]
+    units: tuple[str, ...]
+    neutral: tuple[float, ...]  # parameter values that mean "no effect"
+    design: Callable  # (Signals, Vehicle) -> (N, 6, n_params)
+    axes: tuple[int, ...]  # rows of [f_a; tau_a] the term can touch
+    first_order: bool = False  # the term is a first-order approximation of the physics
+    doc: str = ""
+
+    def term(self, params: dict, s: Signals, vehicle) -> np.ndarray:
+        """``(N, 6)`` force and torque added to ``[f_a; tau_a]``."""
+        theta = np.array([float(params.get(p, n)) - n for p, n in zip(self.params, self.neutral)])
+        return self.design(s, vehicle) @ theta
+
+
+def _zeros(s, k):
+    return np.zeros((len(s), 6, k))
+
+
+def _wrench(s, vehicle):
+    w = vehicle.rotors.wrench(s.u)
+    return w[:, 0], w[:, 1:]
+
+
+def _linear_drag(s, v):
+    D = _zeros(s, 3)
+    for j in range(3):
+        D[:, j, j] = -s.v_b[:, j]
+    return D
+
+
+def _quadratic_drag(s, v):
+    D = _zeros(s, 3)
+    for j in range(3):
+        D[:, j, j] = -np.abs(s.v_b[:, j]) * s.v_b[:, j]
+    return D
+
+
+def _rotor_drag(s, v):
+    D = _zeros(s, 1)
+    omega_sum = s.u.sum(axis=1)
+    D[:, 0, 0] = -omega_sum * s.v_b[:, 0]
+    D[:, 1, 0] = -omega_sum * s.v_b[:, 1]
+    return D
+
+
+def _wind_force(s, v):
+    D = _zeros(s, 3)
+    D[:, 0:3, :] = np.transpose(s.R, (0, 2, 1))  # column j: R^T e_j
+    return D
+
+
+def _body_force_bias(s, v):
+    D = _zeros(s, 3)
+    D[:, 0:3, :] = np.eye(3)
+    return D
+
+
+def _thrust_gain(s, v):
+    T, G = _wrench(s, v)
+    D = _zeros(s, 1)
+    D[:, 2, 0] = T
+    D[:, 3, 0] = G[:, 0]
+    D[:, 4, 0] = G[:, 1]
+    return D
+
+
+def _mass_error(s, v):
+    D = _zeros(s, 1)
+    g_b = np.einsum("nji,j->ni", s.R, GRAVITY)
+    D[:, 0:3, 0] = -(s.a_b - g_b)
+    return D
+
+
+def height(s, vehicle) -> np.ndarray:
+    return s.p[:, 2] - vehicle.ground_z
+
+
+def _ground_effect(s, v):
+    T, _ = _wrench(s, v)
+    D = _zeros(s, 1)
+    D[:, 2, 0] = T / height(s, v) ** 2
+    return D
+
+
+def _motor_imbalance(s, v):
+    cols = v.rotors.rotor_wrench_columns()  # (4 wrench rows, n rotors)
+    u2 = s.u**2
+    D = _zeros(s, 4)
+    for i in range(4):
+        D[:, 2, i] = cols[0, i] * u2[:, i]
+        D[:, 3, i] = cols[1, i] * u2[:, i]
+        D[:, 4, i] = cols[2, i] * u2[:, i]
+    return D
+
+
+def _cg_offset(s, v):
+    T, _ = _wrench(s, v)
+    D = _zeros(s, 2)
+    D[:, 4, 0] = T  # rx: torque [0, rx T, 0]
+    D[:, 3, 1] = -T  # ry: torque [-ry T, 0, 0]
+    return D
+
+
+def _torque_bias(s, v):
+    D = _zeros(s, 3)
+    D[:, 3:6, :] = np.eye(3)
+    return D
+
+
+def _yaw_torque_gain(s, v):
+    _, G = _wrench(s, v)
+    D = _zeros(s, 1)
+    D[:, 5, 0] = G[:, 2]
+    return D
+
+
+def _inertia_error(s, v):
+    w, a = s.omega, s.alpha
+    D = _zeros(s, 3)
+    # -diag(dJ) alpha + (diag(dJ) omega) x omega, one column per dJ entry
+    D[:, 3:6, 0] = np.stack([-a[:, 0], -w[:, 0] * w[:, 2], w[:, 0] * w[:, 1]], -1)
+    D[:, 3:6, 1] = np.stack([w[:, 1] * w[:, 2], -a[:, 1], -w[:, 0] * w[:, 1]], -1)
+    D[:, 3:6, 2] = np.stack([-w[:, 1] * w[:, 2], w[:, 0] * w[:, 2], -a[:, 2]], -1)
+    return D
+
+
+def _actuator_delay(s, v):
+    # d/dt of the wrench B u² is B (2 u ⊙ u̇)
+    wdot = (2.0 * s.u * s.u_dot) @ v.rotors.matrix.T
+    D = _zeros(s, 1)
+    D[:, 2, 0] = -wdot[:, 0]
+    D[:, 3:6, 0] = -wdot[:, 1:]
+    return D
+
+
+def _marker_offset(s, v):
+    A = skew(s.alpha) + skew(s.omega) @ skew(s.omega)  # α×r + ω×(ω×r) = A r
+    D = _zeros(s, 3)
+    D[:, 0:3, :] = v.mass * A
+    return D
+
+
+def _blade_flapping(s, v):
+    D = _zeros(s, 1)
+    D[:, 3, 0] = s.v_b[:, 1]
+    D[:, 4, 0] = -s.v_b[:, 0]
+    return D
+
+
+F, TQ, ALL = (0, 1, 2), (3, 4, 5), (0, 1, 2, 3, 4, 5)
+CATALOG: dict[str, Effect] = {e.name: e for e in [
+    Effect("linear_drag", ("kx", "ky", "kz"), ("N s/m",) * 3, (0, 0, 0), _linear_drag, F,
+           doc="force -diag(k) v_b"),
+    Effect("quadratic_drag", ("cx", "cy", "cz"), ("N s^2/m^2",) * 3, (0, 0, 0), _quadratic_drag, F,
+           doc="force -c ⊙ |v_b| ⊙ v_b"),
+    Effect("rotor_drag", ("k",), ("N s/m per rotor-speed unit",), (0,), _rotor_drag, (0, 1),
+           doc="force -k Ω [v_bx, v_by, 0], Ω = Σ u_i"),
+    Effect("wind_force", ("fx", "fy", "fz"), ("N",) * 3, (0, 0, 0), _wind_force, F,
+           doc="force R^T [fx, fy, fz] (constant in the world frame)"),
+    Effect("body_force_bias", ("bx", "by", "bz"), ("N",) * 3, (0, 0, 0), _body_force_bias, F,
+           doc="force [bx, by, bz] (constant in the body frame)"),
+    Effect("thrust_gain", ("gain",), ("-",), (1,), _thrust_gain, (2, 3, 4),
+           doc="force (gain-1)[0,0,T], torque (gain-1)[Γx,Γy,0]"),
+    Effect("mass_error", ("dm",), ("kg",), (0,), _mass_error, F,
+           doc="force -dm (a_b - R^T g)"),
+    Effect("ground_effect", ("k",), ("m^2",), (0,), _ground_effect, (2,),
+           doc="force k T / p_z^2 [0, 0, 1]"),
+    Effect("motor_imbalance", ("d1", "d2", "d3", "d4"), ("-",) * 4, (0, 0, 0, 0), _motor_imbalance, (2, 3, 4),
+           doc="rotor i thrust C_T (1 + d_i) u_i^2"),
+    Effect("cg_offset", ("rx", "ry"), ("m", "m"), (0, 0), _cg_offset, (3, 4),
+           doc="torque [-ry T, rx T, 0]"),
+    Effect("torque_bias", ("tx", "ty", "tz"), ("N m",) * 3, (0, 0, 0), _torque_bias, TQ,
+           doc="torque [tx, ty, tz]"),
+    Effect("yaw_torque_gain", ("gain",), ("-",), (1,), _yaw_torque_gain, (5,),
+           doc="torque (gain-1)[0,0,Γz]"),
+    Effect("inertia_error", ("dJxx", "dJyy", "dJzz"), ("kg m^2",) * 3, (0, 0, 0), _inertia_error, TQ,
+           doc="torque -diag(dJ) α + (diag(dJ) ω) × ω"),
+    Effect("actuator_delay", ("delay_s",), ("s",), (0,), _actuator_delay, ALL, first_order=True,
+           doc="force and torque -delay d/dt [T-force, Γ] (first order)"),
+    Effect("marker_offset", ("rx", "ry", "rz"), ("m",) * 3, (0, 0, 0), _marker_offset, F,
+           doc="force m (α × r + ω × (ω × r))"),
+    Effect("blade_flapping", ("k",), ("N m s/m",), (0,), _blade_flapping, (3, 4),
+           doc="torque k [v_by, -v_bx, 0]"),
+]}
+
+
+def get(name: str, path=None) -> Effect:
+    if name not in CATALOG:
+        close = difflib.get_close_matches(name, list(CATALOG), n=1)
+        raise QrInputError(path, f"unknown effect '{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""),
+                           f"use one of {', '.join(CATALOG)}")
+    return CATALOG[name]
+
+
+def parse_effect_spec(spec: str) -> dict:
+    """``'linear_drag:kx=0.3,ky=0.3'`` -> ``{'name': 'linear_drag', 'parameters': {...}}``.
+
+    Parameters left out take their neutral value (no effect on that axis).
+    """
+    name, _, rest = spec.partition(":")
+    eff = get(name.strip(), "--effect")
+    params = {}
+    for item in filter(None, (x.strip() for x in rest.split(","))):
+        key, eq, val = item.partition("=")
+        key = key.strip()
+        if not eq or key not in eff.params:
+            raise QrInputError("--effect", f"'{item}' is not a parameter of {eff.name}",
+                               f"write {eff.name}:" + ",".join(f"{p}=VALUE" for p in eff.params))
+        try:
+            params[key] = float(val)
+        except ValueError:
+            raise QrInputError("--effect", f"{eff.name} parameter {key}={val!r} is not a number",
+                               "give numbers in SI units") from None
+    full = {p: params.get(p, float(n)) for p, n in zip(eff.params, eff.neutral)}
+    return {"name": eff.name, "parameters": full}
+
+
+def validate_effect_list(effects, path=None) -> list[dict]:
+    out = []
+    if not isinstance(effects, list):
+        raise QrInputError(path, "'effects' is not a list", "write effects as a list of {name, parameters}")
+    for e in effects:
+        if not isinstance(e, dict) or "name" not in e:
+            raise QrInputError(path, f"effect entry {e!r} has no name", "write {name: ..., parameters: {...}}")
+        eff = get(e["name"], path)
+        params = e.get("parameters", {}) or {}
+        bad = [k for k in params if k not in eff.params]
+        if bad:
+            raise QrInputError(path, f"effect {eff.name} has unknown parameter(s) {bad}",
+                               f"its parameters are {', '.join(eff.params)}")
+        out.append({"name": eff.name, "parameters": {p: float(params.get(p, n))
+                                                      for p, n in zip(eff.params, eff.neutral)}})
+    return out
+
+
+def total_term(effects: list[dict], s: Signals, vehicle) -> np.ndarray:
+    """Sum of the terms of a list of ``{name, parameters}`` (N, 6)."""
+    out = np.zeros((len(s), 6))
+    for e in effects:
+        out += get(e["name"]).term(e["parameters"], s, vehicle)
+    return out

@@ -1,0 +1,201 @@
+"""The canonical flight log (``../shared/spec/flight-log.md``): read, validate, write.
+
+A flight is a ``pandas.DataFrame`` with the spec's columns in SI units (rotor
+speeds in the vehicle's ``rotor_speed_unit``); ``NaN`` marks a dropout.  CSV is
+the exchange format; Parquet is the fast format between workflow stages.
+"""
+
+from __future__ import annotations
+
+import difflib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .atomic import atomic_path
+from .errors import QrInputError
+from .frames import make_continuous
+
+POSITION = ["px", "py", "pz"]
+QUATERNION = ["qw", "qx", "qy", "qz"]
+ROTORS = ["u1", "u2", "u3", "u4"]
+REQUIRED = ["t", *POSITION, *QUATERNION, *ROTORS]
+OPTIONAL = ["ax", "ay", "az", "gx", "gy", "gz", "vbat"]
+QUAT_NORM_TOL = 0.05  # |‖q‖ - 1| above this is not a rounding error
+HOVER_RATIO_LIMITS = (1 / 3, 3.0)
+
+
+def _error(path, problem, fix):
+    return QrInputError(path, problem, fix)
+
+
+def read_flight(path: str | Path, vehicle=None) -> pd.DataFrame:
+    """Read a canonical CSV or Parquet flight, validated and normalised."""
+    path = Path(path)
+    if not path.exists():
+        raise _error(path, "flight file does not exist", "check the path")
+    if path.stat().st_size == 0:
+        raise _error(path, "flight file is empty", "give a CSV with a header row and one row per sample")
+    if path.suffix == ".parquet":
+        df = pd.read_parquet(path)
+    else:
+        df = _read_csv(path)
+    return validate_flight(df, path, vehicle)
+
+
+def _read_csv(path: Path) -> pd.DataFrame:
+    try:
+        head = pd.read_csv(path, nrows=0)
+    except pd.errors.EmptyDataError:
+        raise _error(path, "flight file is empty", "give a CSV with a header row and one row per sample") from None
+    cols = [str(c).strip() for c in head.columns]
+    _check_columns(path, cols)
+    numeric = [c for c in cols if c in REQUIRED or c in OPTIONAL]
+    try:
+        df = pd.read_csv(path, dtype={c: "float64" for c in numeric}, skipinitialspace=True)
+    except (ValueError, TypeError):
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+        df.columns = cols
+        _raise_first_non_numeric(path, df, numeric)
+        raise _error(path, "the CSV cannot be parsed as numbers", "write one number per cell, comma separated")
+    except pd.errors.ParserError as e:
+        raise _error(path, f"malformed CSV ({str(e).splitlines()[0]})",
+                     "every row needs as many comma-separated cells as the header") from None
+    df.columns = cols
+    if len(df) == 0:
+        raise _error(path, "flight file has a header but no samples", "export the flight's rows too")
+    return df
+
+
+def _raise_first_non_numeric(path, df, numeric):
+    for c in numeric:
+        s = df[c].astype(str).str.strip()
+        vals = pd.to_numeric(s.where(s != "", None), errors="coerce")
+        bad = vals.isna() & (s != "") & ~s.str.lower().isin(["nan"])
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise _error(path, f"non-numeric value {s.iloc[i]!r} in column '{c}' at line {i + 2}",
+                         "write numbers only (leave the cell empty for a dropout)")
+
+
+def _check_columns(path, cols):
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise _error(path, f"column(s) {dup} appear more than once", "keep one column of each name")
+    missing = [c for c in REQUIRED if c not in cols]
+    if missing:
+        hints = []
+        for m in missing:
+            close = difflib.get_close_matches(m, [c for c in cols if c not in REQUIRED], n=1, cutoff=0.5)
+            hints.append(f"'{m}'" + (f" (found '{close[0]}': misspelled?)" if close else ""))
+        raise _error(path, f"missing column(s) {', '.join(hints)}",
+                     f"the header must contain {', '.join(REQUIRED)} (../shared/spec/flight-log.md)")
+
+
+def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
+    """Check a flight against the spec and return it normalised.
+
+    Errors are raised for unusable input; legal but messy input is repaired:
+    quaternion sign flips are made continuous, quaternions renormalised, blank
+    cells kept as NaN (dropouts), unknown columns carried along at the end.
+    """
+    cols = [str(c) for c in df.columns]
+    _check_columns(path, cols)
+    if len(df) == 0:
+        raise _error(path, "flight has no samples", "export the flight's rows too")
+    df = df.copy()
+    for c in [c for c in cols if c in REQUIRED or c in OPTIONAL]:
+        if not pd.api.types.is_numeric_dtype(df[c]):
+            _raise_first_non_numeric(path, df.astype({c: str}), [c])
+            df[c] = pd.to_numeric(df[c])
+        df[c] = df[c].astype("float64")
+
+    t = df["t"].to_numpy()
+    if np.isnan(t).any():
+        i = int(np.flatnonzero(np.isnan(t))[0])
+        raise _error(path, f"time stamp missing at data row {i + 1}", "every row needs a time stamp t (s)")
+    dt = np.diff(t)
+    if (dt == 0).any():
+        i = int(np.flatnonzero(dt == 0)[0])
+        raise _error(path, f"duplicated time stamp t={t[i]:.6f} at data rows {i + 1} and {i + 2}",
+                     "drop the repeated row (or fix the clock) so t is strictly increasing")
+    if (dt < 0).any():
+        i = int(np.flatnonzero(dt < 0)[0])
+        raise _error(path, f"time stamps not strictly increasing (t={t[i]:.6f} then {t[i + 1]:.6f} "
+                           f"at data rows {i + 1}-{i + 2})", "sort the rows by t, or fix the clock")
+
+    q = df[QUATERNION].to_numpy()
+    n = np.linalg.norm(q, axis=1)
+    far = np.isfinite(n) & (np.abs(n - 1.0) > QUAT_NORM_TOL)
+    if far.any():
+        i = int(np.flatnonzero(far)[0])
+        raise _error(path, f"quaternion norm {n[i]:.3f} at data row {i + 1} (t={t[i]:.3f}) is far from 1",
+                     "give unit quaternions [qw, qx, qy, qz] (scalar first), not Euler angles or a scaled q")
+    q_part = np.isfinite(q).any(axis=1) & ~np.isfinite(q).all(axis=1)
+    q[q_part] = np.nan
+    q = make_continuous(q / n[:, None])
+    df[QUATERNION] = q
+
+    u = df[ROTORS].to_numpy()
+    if (u < 0).any():
+        r, c = np.argwhere(u < 0)[0]
+        raise _error(path, f"negative rotor speed {u[r, c]:g} in '{ROTORS[c]}' at data row {r + 1}",
+                     "give rotor speed magnitudes (the layout's yaw_sign carries the direction)")
+    if vehicle is not None:
+        check_hover_ratio(df, vehicle, path)
+
+    extra = [c for c in cols if c not in REQUIRED and c not in OPTIONAL]
+    opt = [c for c in OPTIONAL if c in cols]
+    return df[REQUIRED + opt + extra].reset_index(drop=True)
+
+
+def hover_ratio(df: pd.DataFrame, vehicle) -> float:
+    """Median rotor-map thrust over m g: near 1 for a flight with consistent units."""
+    u = df[ROTORS].to_numpy()
+    ok = np.isfinite(u).all(axis=1)
+    if not ok.any():
+        return float("nan")
+    T, _ = vehicle.rotors.thrust_torque(u[ok])
+    return float(np.median(T) / (vehicle.mass * 9.81))
+
+
+def check_hover_ratio(df, vehicle, path=None):
+    ratio = hover_ratio(df, vehicle)
+    lo, hi = HOVER_RATIO_LIMITS
+    if np.isfinite(ratio) and not lo <= ratio <= hi:
+        unit = vehicle.rotor_speed_unit
+        other = "rad_s" if unit == "rpm" else "rpm"
+        # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
+        factor = (60 / (2 * np.pi)) ** 2 if unit == "rpm" else (2 * np.pi / 60) ** 2
+        hint = ""
+        if lo <= ratio * factor <= hi:
+            hint = f"the speeds look like {other}, not {unit}:"
+        raise _error(path, f"rotor speeds give a median thrust of {ratio:.3g} x m g "
+                           f"(plausible: {lo:.2f}-{hi:.0f}); a unit or coefficient error",
+                     f"{hint + ' ' if hint else ''}check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "
+                     f"and that u1..u4 are rotor speeds")
+
+
+def write_flight(df: pd.DataFrame, path: str | Path) -> None:
+    """Write CSV (``.csv``) or Parquet (``.parquet``) atomically."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        if path.suffix == ".parquet":
+            df.to_parquet(tmp, index=False)
+        else:
+            df.to_csv(tmp, index=False, float_format="%.9g")
+
+
+def dropouts(df: pd.DataFrame) -> dict:
+    """Counts of missing samples: blank cells per sensor, and stamps gaps above 1.5x the median step."""
+    t = df["t"].to_numpy()
+    dt = np.diff(t)
+    med = float(np.median(dt)) if len(dt) else float("nan")
+    gaps = int(np.sum(np.round(dt[dt > 1.5 * med] / med) - 1)) if len(dt) else 0
+    return {
+        "mocap_blank": int(df[POSITION + QUATERNION].isna().any(axis=1).sum()),
+        "rotor_blank": int(df[ROTORS].isna().any(axis=1).sum()),
+        "missed_frames": gaps,
+        "median_dt": med,
+    }

@@ -1,0 +1,54 @@
+"""Adapters from raw logs to the canonical flight (``flight-log.md``).
+
+Each adapter is a function ``read(path) -> DataFrame`` (canonical columns, SI,
+rotor speeds in the unit the source logs) registered in ``ADAPTERS``; detection
+by content is in ``detect_format``.  To add a source (PX4 ULog, ROS bag, a
+public data set), write ``ingest/<name>.py`` with such a ``read`` and register it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from ..errors import QrInputError
+from ..flight import validate_flight, write_flight
+from . import cf_usd, csv, future
+
+ADAPTERS = {
+    "csv": csv.read,
+    "cf-usd": cf_usd.read,
+    "ulog": future.ulog,
+    "rosbag": future.rosbag,
+}
+
+
+def detect_format(path: Path) -> str:
+    with open(path, "rb") as f:
+        head = f.read(16)
+    if head[:1] == cf_usd.MAGIC:
+        return "cf-usd"
+    if head.startswith(b"ULog"):
+        return "ulog"
+    if head.startswith(b"#ROSBAG") or path.suffix in (".bag", ".mcap", ".db3"):
+        return "rosbag"
+    return "csv"
+
+
+def ingest(src: str | Path, vehicle, out: str | Path | None = None, fmt: str = "auto") -> pd.DataFrame:
+    """Read ``src`` in ``fmt`` (or detect it), validate against ``vehicle``, write ``out`` atomically."""
+    src = Path(src)
+    if not src.exists():
+        raise QrInputError(src, "log file does not exist", "check the path")
+    if src.stat().st_size == 0:
+        raise QrInputError(src, "log file is empty", "point at a complete log (a failed recording is 0 bytes)")
+    if fmt == "auto":
+        fmt = detect_format(src)
+    if fmt not in ADAPTERS:
+        raise QrInputError(src, f"unknown format '{fmt}'", f"use one of auto, {', '.join(ADAPTERS)}")
+    df = ADAPTERS[fmt](src)
+    df = validate_flight(df, src, vehicle)
+    if out is not None:
+        write_flight(df, out)
+    return df

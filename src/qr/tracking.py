@@ -1,0 +1,228 @@
+"""MLflow runs with provenance: the one way the project opens a tracked run.
+
+Store: ``MLFLOW_TRACKING_URI`` if set (a server for shared tracking), else an
+embedded SQLite store ``results/mlflow.db`` with artifacts in
+``results/mlartifacts`` (``QR_RESULTS`` moves ``results``).  One experiment per
+stage.  Every run is tagged with the git commit, a hash of its resolved
+config and a digest of its input data.  SQLite allows one writer at a time:
+writes are retried, and store creation is serialised with a file lock, so
+concurrent jobs neither lose nor corrupt records.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import hashlib
+import json
+import logging
+import os
+import random
+import subprocess
+import time
+from pathlib import Path
+from typing import Iterable, Iterator
+
+_RETRIES = 12
+
+
+def results_dir() -> Path:
+    return Path(os.environ.get("QR_RESULTS", "results")).resolve()
+
+
+def tracking_uri() -> str:
+    uri = os.environ.get("MLFLOW_TRACKING_URI")
+    if uri:
+        return uri
+    return f"sqlite:///{results_dir() / 'mlflow.db'}"
+
+
+def _is_local_sqlite(uri: str) -> bool:
+    return uri.startswith("sqlite:///")
+
+
+@contextlib.contextmanager
+def _store_lock() -> Iterator[None]:
+    uri = tracking_uri()
+    if not _is_local_sqlite(uri):
+        yield
+        return
+    lock = Path(uri[len("sqlite:///"):]).with_suffix(".lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    with open(lock, "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _retry(fn, *args, **kwargs):
+    """Call ``fn`` retrying on SQLite's 'database is locked' under concurrent writers."""
+    for attempt in range(_RETRIES):
+        try:
+            return fn(*args, **kwargs)
+        except Exception as e:  # mlflow wraps sqlalchemy errors in MlflowException
+            msg = str(e).lower()
+            if "locked" not in msg and "busy" not in msg or attempt == _RETRIES - 1:
+                raise
+            time.sleep(0.05 * 2 ** min(attempt, 6) * (0.5 + random.random()))
+
+
+def git_commit() -> str:
+    try:
+        root = Path(__file__).resolve().parents[2]
+        res = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=5)
+        sha = res.stdout.strip() if res.returncode == 0 else ""
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=5).stdout.strip()
+        return (sha or "unknown") + ("-dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def config_hash(config) -> str:
+    return hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def data_digest(paths: Iterable[str | Path]) -> str:
+    h = hashlib.sha256()
+    for p in sorted(str(p) for p in paths):
+        h.update(Path(p).name.encode())
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()[:16]
+
+
+def flatten(d, prefix="") -> dict:
+    out = {}
+    for k, v in (d or {}).items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _client():
+    import mlflow
+
+    logging.getLogger("alembic").setLevel(logging.WARNING)
+    logging.getLogger("mlflow").setLevel(logging.WARNING)
+    os.environ.setdefault("MLFLOW_SQLALCHEMYSTORE_POOLCLASS", "NullPool")
+    mlflow.set_tracking_uri(tracking_uri())
+    return mlflow.MlflowClient()
+
+
+def experiment_id(stage: str) -> str:
+    """Experiment ``qr-<stage>``, created once (under the lock) if missing."""
+    name = f"qr-{stage}"
+    with _store_lock():
+        client = _client()
+        exp = _retry(client.get_experiment_by_name, name)
+        if exp is not None:
+            return exp.experiment_id
+        location = None
+        if _is_local_sqlite(tracking_uri()):
+            location = (results_dir() / "mlartifacts").as_uri()
+        return _retry(client.create_experiment, name, artifact_location=location)
+
+
+class Run:
+    """A tracked run; methods retry on a busy store."""
+
+    def __init__(self, client, run_id):
+        self.client = client
+        self.id = run_id
+
+    def params(self, params: dict) -> None:
+        from mlflow.entities import Param
+
+        items = [Param(k, str(v)[:6000]) for k, v in flatten(params).items()]
+        for i in range(0, len(items), 100):
+            _retry(self.client.log_batch, self.id, params=items[i:i + 100])
+
+    def metrics(self, metrics: dict, step: int = 0) -> None:
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, step) for k, v in flatten(metrics).items()
+                 if v is not None and _finite(v)]
+        for i in range(0, len(items), 100):
+            _retry(self.client.log_batch, self.id, metrics=items[i:i + 100])
+
+    def tags(self, tags: dict) -> None:
+        from mlflow.entities import RunTag
+
+        _retry(self.client.log_batch, self.id, tags=[RunTag(k, str(v)) for k, v in tags.items()])
+
+    def artifact(self, path: str | Path, subdir: str | None = None) -> None:
+        _retry(self.client.log_artifact, self.id, str(path), subdir)
+
+
+def _finite(v) -> bool:
+    try:
+        import math
+
+        return math.isfinite(float(v))
+    except (TypeError, ValueError):
+        return False
+
+
+@contextlib.contextmanager
+def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str | Path] = (),
+        parent: Run | None = None, tags: dict | None = None) -> Iterator[Run]:
+    """Open an MLflow run in experiment ``qr-<stage>`` with provenance tags.
+
+    Ends FINISHED on success, KILLED on interrupt, FAILED on any other error.
+    ``QR_TRACKING=off`` disables tracking (the run object then records nothing).
+    """
+    if os.environ.get("QR_TRACKING", "on").lower() in ("off", "0", "false"):
+        yield _NullRun()
+        return
+    exp = experiment_id(stage)
+    client = _client()
+    inputs = list(inputs)
+    all_tags = {
+        "qr.stage": stage,
+        "mlflow.source.git.commit": git_commit(),
+        "qr.config_hash": config_hash(config or {}),
+        "qr.data_digest": data_digest(inputs) if inputs else "none",
+        "qr.inputs": ",".join(Path(p).name for p in inputs)[:5000],
+    }
+    if parent is not None and not isinstance(parent, _NullRun):
+        all_tags["mlflow.parentRunId"] = parent.id
+    all_tags.update(tags or {})
+    r = _retry(client.create_run, exp, run_name=name, tags=all_tags)
+    handle = Run(client, r.info.run_id)
+    if config:
+        handle.params(config)
+    status = "FAILED"
+    try:
+        yield handle
+        status = "FINISHED"
+    except KeyboardInterrupt:
+        status = "KILLED"
+        raise
+    finally:
+        _retry(client.set_terminated, handle.id, status)
+
+
+class _NullRun(Run):
+    def __init__(self):
+        super().__init__(None, "none")
+
+    def params(self, params):
+        pass
+
+    def metrics(self, metrics, step=0):
+        pass
+
+    def tags(self, tags):
+        pass
+
+    def artifact(self, path, subdir=None):
+        pass

@@ -1,0 +1,219 @@
+"""Vehicle files: load, validate, save.  The one home of the vehicle parameters.
+
+The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project adds
+(never required of outside files): ``ground_z`` (m, height of the floor in the
+log's world frame), ``rotor_speed_min`` / ``rotor_speed_max`` and
+``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
+``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
+and ``extends`` (a path, relative to this file, of a vehicle whose keys this one
+overrides).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .atomic import write_text
+from .errors import QrInputError, warn
+from .rotors import RotorMap
+
+REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
+SPEED_UNITS = ("rpm", "rad_s")
+OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
+KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
+                         "description", "source"} | set(OPTIONAL_DEFAULTS)
+
+
+@dataclass
+class Vehicle:
+    name: str
+    mass: float
+    inertia: np.ndarray  # (3,) principal Jxx, Jyy, Jzz (kg m^2)
+    rotors: RotorMap
+    rotor_speed_unit: str
+    raw: dict = field(repr=False)  # the validated mapping (for saving / extending)
+
+    @property
+    def J(self) -> np.ndarray:
+        return np.diag(self.inertia)
+
+    @property
+    def thrust_coeff(self) -> float:
+        return self.rotors.thrust_coeff
+
+    @property
+    def torque_coeff(self) -> float:
+        return self.rotors.torque_coeff
+
+    @property
+    def ground_z(self) -> float:
+        return float(self.raw.get("ground_z", OPTIONAL_DEFAULTS["ground_z"]))
+
+    @property
+    def motor_time_constant(self) -> float:
+        return float(self.raw.get("motor_time_constant", OPTIONAL_DEFAULTS["motor_time_constant"]))
+
+    @property
+    def hover_speed(self) -> float:
+        """Rotor speed (vehicle unit) at which four equal rotors carry m g."""
+        return math.sqrt(self.mass * 9.81 / (self.rotors.n * self.thrust_coeff))
+
+    @property
+    def rotor_speed_min(self) -> float:
+        return float(self.raw.get("rotor_speed_min", 0.0))
+
+    @property
+    def rotor_speed_max(self) -> float:
+        # Default: thrust-to-weight 2.5, a typical small multirotor.
+        return float(self.raw.get("rotor_speed_max", self.hover_speed * math.sqrt(2.5)))
+
+    @property
+    def effects(self) -> list[dict]:
+        return list(self.raw.get("effects") or [])
+
+    def with_changes(self, **changes) -> "Vehicle":
+        raw = copy.deepcopy(self.raw)
+        raw.update(changes)
+        return vehicle_from_dict(raw)
+
+    def to_dict(self) -> dict:
+        return copy.deepcopy(self.raw)
+
+
+def _number(path, raw, key, positive=True):
+    val = raw[key]
+    try:
+        x = float(val)
+    except (TypeError, ValueError):
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a number",
+                           f"give '{key}' as a number in SI units") from None
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a positive number",
+                           f"set '{key}' to its physical (positive) value")
+    return x
+
+
+def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
+    if not isinstance(raw, dict):
+        raise QrInputError(path, "vehicle file is not a YAML mapping",
+                           "write 'key: value' lines as in ../shared/spec/flight-log.md")
+    missing = [k for k in REQUIRED if k not in raw]
+    if raw.get("layout") == "plus" and "arm_length" not in raw:
+        missing.append("arm_length")
+    if missing:
+        import difflib
+        hints = []
+        for k in missing:
+            close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
+            hints.append(f"'{k}'" + (f" (found '{close[0]}')" if close else ""))
+        raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
+                           "add them as in ../shared/spec/flight-log.md")
+    raw = dict(raw)
+    mass = _number(path, raw, "mass")
+    ct = _number(path, raw, "thrust_coeff")
+    cq = _number(path, raw, "torque_coeff")
+    arm = _number(path, raw, "arm_length") if "arm_length" in raw else None
+    inertia = raw["inertia"]
+    if not (isinstance(inertia, (list, tuple)) and len(inertia) == 3):
+        raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
+                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
+    try:
+        J = np.array([float(x) for x in inertia])
+    except (TypeError, ValueError):
+        raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
+                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2") from None
+    if not np.all(np.isfinite(J)) or np.any(J <= 0):
+        raise QrInputError(path, f"vehicle inertia {[float(x) for x in J]} has a non-positive entry",
+                           "give positive principal inertias in kg m^2")
+    for i in range(3):
+        a, b, c = J[i], J[(i + 1) % 3], J[(i + 2) % 3]
+        if a > b + c:
+            names = ["Jxx", "Jyy", "Jzz"]
+            warn(path, f"inertia {[float(x) for x in J]} breaks the triangle inequality "
+                       f"({names[i]} > {names[(i + 1) % 3]} + {names[(i + 2) % 3]}): no rigid body has it",
+                 "use measured principal inertias; for a symmetric quadrotor Jzz is at most Jxx + Jyy "
+                 "(the thesis's Table 4.1 value is such an error)")
+            break
+    unit = raw["rotor_speed_unit"]
+    if unit not in SPEED_UNITS:
+        raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
+                           f"use one of {', '.join(SPEED_UNITS)}")
+    layout = raw["layout"]
+    if layout != "plus":
+        if not isinstance(layout, list) or len(layout) != 4:
+            raise QrInputError(path, "layout is neither 'plus' nor a list of four rotors",
+                               "write layout: plus, or four entries {x, y, yaw_sign}")
+        for i, r in enumerate(layout, 1):
+            if not isinstance(r, dict) or not {"x", "y", "yaw_sign"} <= set(r):
+                raise QrInputError(path, f"layout rotor {i} is {r!r}",
+                                   "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}")
+            if float(r["yaw_sign"]) not in (-1.0, 1.0):
+                raise QrInputError(path, f"layout rotor {i} has yaw_sign {r['yaw_sign']!r}",
+                                   "yaw_sign is +1 or -1")
+    rotors = RotorMap.from_layout(layout, arm, ct, cq)
+    if abs(np.linalg.det(rotors.matrix)) < 1e-300 or np.linalg.matrix_rank(rotors.matrix) < 4:
+        raise QrInputError(path, "layout gives a rotor map that cannot control thrust, roll, pitch and yaw",
+                           "check rotor positions and yaw signs (two of each sign, not collinear)")
+    if "rotor_speed_max" in raw:
+        _number(path, raw, "rotor_speed_max")
+    for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
+        if k in raw:
+            _number(path, raw, k, positive=(k == "motor_time_constant"))
+    unknown = sorted(set(raw) - KNOWN)
+    if unknown:
+        warn(path, f"vehicle file has unknown key(s) {unknown} (ignored)", "remove them or check their spelling")
+    if raw.get("effects"):
+        from .effects import validate_effect_list
+        validate_effect_list(raw["effects"], path)
+    return Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.exists():
+        raise QrInputError(path, "vehicle file does not exist", "check the path (vehicles live in conf/vehicle/)")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        where = f" at line {line + 1}" if line is not None else ""
+        raise QrInputError(path, f"vehicle file is not valid YAML{where}",
+                           "fix the syntax (key: value, lists in [ ] or '- ' lines)") from None
+    if raw is None:
+        raise QrInputError(path, "vehicle file is empty", "write the keys of ../shared/spec/flight-log.md")
+    if isinstance(raw, dict) and "extends" in raw:
+        base = _read_yaml((path.parent / str(raw["extends"])).resolve())
+        base.update({k: v for k, v in raw.items() if k != "extends"})
+        raw = base
+    return raw
+
+
+def load_vehicle(path: str | Path) -> Vehicle:
+    path = Path(path)
+    return vehicle_from_dict(_read_yaml(path), path)
+
+
+def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None = None) -> None:
+    raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
+    raw.pop("extends", None)
+    text = yaml.safe_dump(_plain(raw), sort_keys=False, default_flow_style=None)
+    if header:
+        text = "".join(f"# {line}\n" for line in header.splitlines()) + text
+    write_text(path, text)
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x

@@ -1,0 +1,56 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("QR_DATA", ROOT.parent / "shared" / "data" / "imrclab-crazyflie"))
+VEHICLES = ROOT / "conf" / "vehicle"
+
+
+@pytest.fixture(autouse=True)
+def _isolated(tmp_path, monkeypatch):
+    """Every test gets its own results dir; MLflow off unless a test turns it on."""
+    monkeypatch.setenv("QR_RESULTS", str(tmp_path / "results"))
+    monkeypatch.setenv("QR_TRACKING", "off")
+    monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+
+
+@pytest.fixture
+def hummingbird():
+    from qr.vehicle import load_vehicle
+
+    return load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+
+
+@pytest.fixture
+def crazyflie():
+    from qr.vehicle import load_vehicle
+
+    return load_vehicle(VEHICLES / "crazyflie21_brushless.yaml")
+
+
+def signals_from_truth(truth):
+    """Signals of the tracked point from a synthetic flight's noise-free truth table."""
+    from qr.effects import Signals
+    from qr.frames import quat_to_rot, to_body
+
+    R = quat_to_rot(truth[["qw", "qx", "qy", "qz"]].to_numpy())
+    return Signals(R, to_body(R, truth[["vx", "vy", "vz"]].to_numpy()), to_body(R, truth[["ax", "ay", "az"]].to_numpy()),
+                   truth[["wx", "wy", "wz"]].to_numpy(), truth[["alx", "aly", "alz"]].to_numpy(),
+                   truth[["u1", "u2", "u3", "u4"]].to_numpy(), truth[["ud1", "ud2", "ud3", "ud4"]].to_numpy(),
+                   truth[["px", "py", "pz"]].to_numpy())
+
+
+def run_cli(args, capsys):
+    """Run ``qr ARGS`` in-process; returns (status, stdout, stderr)."""
+    from qr.cli import main
+
+    status = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+def rng(seed=0):
+    return np.random.default_rng(seed)

@@ -1,0 +1,49 @@
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from conftest import ROOT
+
+
+def test_run_has_provenance_and_status(tmp_path, monkeypatch):
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+
+    data = tmp_path / "d.csv"
+    data.write_text("t\n0\n")
+    with tracking.run("unit", "ok", {"model": {"layers": 2}}, inputs=[data]) as r:
+        r.metrics({"rmse": 0.5})
+    with pytest.raises(RuntimeError):
+        with tracking.run("unit", "bad", {}):
+            raise RuntimeError("boom")
+    client = tracking._client()
+    runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
+    ok = runs["ok"]
+    assert ok.info.status == "FINISHED" and runs["bad"].info.status == "FAILED"
+    assert ok.data.params["model.layers"] == "2" and ok.data.metrics["rmse"] == 0.5
+    assert ok.data.tags["qr.data_digest"] == tracking.data_digest([data]) != "none"
+    assert len(ok.data.tags["mlflow.source.git.commit"]) >= 7
+    assert ok.data.tags["qr.config_hash"] == tracking.config_hash({"model": {"layers": 2}})
+    assert str(tmp_path) in tracking.tracking_uri()
+
+
+def test_two_processes_logging_at_once_lose_nothing(tmp_path, monkeypatch):
+    monkeypatch.setenv("QR_TRACKING", "on")
+    script = textwrap.dedent("""
+        import sys
+        from qr import tracking
+        tag = sys.argv[1]
+        for i in range(8):
+            with tracking.run("concurrency", f"{tag}-{i}", {"i": i, "tag": tag}) as r:
+                r.metrics({"value": i, "a": 1.0, "b": 2.0})
+    """)
+    procs = [subprocess.Popen([sys.executable, "-c", script, tag], cwd=ROOT) for tag in ("A", "B")]
+    assert all(p.wait(timeout=300) == 0 for p in procs)
+    from qr import tracking
+
+    runs = tracking._client().search_runs([tracking.experiment_id("concurrency")], max_results=1000)
+    names = sorted(r.info.run_name for r in runs)
+    assert names == sorted(f"{t}-{i}" for t in "AB" for i in range(8))  # none lost, none duplicated
+    assert all(r.info.status == "FINISHED" and r.data.metrics["value"] == float(r.data.params["i"]) for r in runs)
