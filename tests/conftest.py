@@ -32,15 +32,9 @@ def crazyflie():
 
 
 def signals_from_truth(truth):
-    """Signals of the tracked point from a synthetic flight's noise-free truth table."""
-    from qr.effects import Signals
-    from qr.frames import quat_to_rot, to_body
+    from qr.states import signals
 
-    R = quat_to_rot(truth[["qw", "qx", "qy", "qz"]].to_numpy())
-    return Signals(R, to_body(R, truth[["vx", "vy", "vz"]].to_numpy()), to_body(R, truth[["ax", "ay", "az"]].to_numpy()),
-                   truth[["wx", "wy", "wz"]].to_numpy(), truth[["alx", "aly", "alz"]].to_numpy(),
-                   truth[["u1", "u2", "u3", "u4"]].to_numpy(), truth[["ud1", "ud2", "ud3", "ud4"]].to_numpy(),
-                   truth[["px", "py", "pz"]].to_numpy())
+    return signals(truth)
 
 
 def run_cli(args, capsys):

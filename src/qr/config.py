@@ -1,0 +1,36 @@
+"""Hydra configuration: one tree in ``conf/`` (``config.yaml`` + one group per stage).
+
+Stage entry points use ``@hydra.main(config_path=CONF_DIR, config_name="config")``;
+library code and ``qr diagnose`` compose the same tree with overrides.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+CONF_DIR = str(Path(os.environ.get("QR_CONF", ROOT / "conf")).resolve())
+
+
+def compose(overrides=()):
+    """The resolved config with Hydra-style overrides (``['model=gpr', 'seed=3']``)."""
+    from hydra import compose as _compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        return _compose("config", overrides=list(overrides))
+
+
+def to_dict(cfg) -> dict:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def vehicle_path(name_or_path: str) -> Path:
+    """A vehicle given by name (``conf/vehicle/<name>.yaml``) or by path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return Path(CONF_DIR) / "vehicle" / f"{name_or_path}.yaml"
