@@ -4,9 +4,18 @@
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/ingest.smk"
+include: "workflow/rules/filter.smk"
+include: "workflow/rules/simulate.smk"
+include: "workflow/rules/learn.smk"
 
 
 rule all:
     default_target: True
     input:
         rules.summary.output,
+        rules.filter_summary.output,
+        rules.filter_figures.output,
+        rules.simulate.output,
+        rules.stability.output,
+        rules.learn_tables.output,
+        rules.learn_best.output,

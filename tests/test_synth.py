@@ -57,7 +57,7 @@ def test_noise_and_dropouts_match_the_settings(synth_dir):
     assert (~ok).mean() == pytest.approx(0.005, abs=0.002)
     du = (flight[["u1", "u2", "u3", "u4"]] - truth[["u1", "u2", "u3", "u4"]]).to_numpy()
     hover = np.sqrt(0.7 * 9.81 / (4 * 4.9782e-8))
-    assert du.std() == pytest.approx(0.01 * hover, rel=0.05)
+    assert du.std() == pytest.approx(0.005 * hover, rel=0.05)
 
 
 def test_same_seed_same_flight(tmp_path, capsys):

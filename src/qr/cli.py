@@ -64,7 +64,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--noise-free", action="store_true", help="log the true states without noise or dropouts")
     s.add_argument("--position-noise", type=float, help="mocap position std, m (default 0.0005)")
     s.add_argument("--attitude-noise", type=float, help="mocap attitude std, rad (default 0.003)")
-    s.add_argument("--rotor-noise", type=float, help="rotor speed std as a fraction of hover speed (default 0.01)")
+    s.add_argument("--rotor-noise", type=float, help="rotor speed std as a fraction of hover speed (default 0.005)")
     s.add_argument("--dropout", type=float, help="fraction of mocap samples blank (default 0.005)")
     s.add_argument("--low-passes", action="store_true", help="dip towards the floor every 12 s (ground effect)")
     s.add_argument("--yaw-rate", type=float, default=0.0, help="constant yaw spin, rad/s")
@@ -76,11 +76,15 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--vehicle", required=True)
     s.add_argument("--out", required=True, help="CSV (a Markdown twin is written beside it)")
 
-    s = sub.add_parser("diagnose", help="name what the nominal model gets wrong (../shared/spec/diagnosis.md)")
-    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv")
-    s.add_argument("--vehicle", required=True)
-    s.add_argument("--out", required=True)
-    s.add_argument("overrides", nargs="*", default=[], help=argparse.SUPPRESS)
+    s = sub.add_parser("diagnose", help="name what the nominal model gets wrong (../shared/spec/diagnosis.md)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
+                              "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
+                              "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml")
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
+                   help="canonical flight(s), then optional Hydra overrides (conf/diagnose/default.yaml)")
+    s.add_argument("--vehicle", required=True, help="vehicle YAML (nominal, or an extended one to build on)")
+    s.add_argument("--out", required=True, help="output directory")
     return p
 
 
@@ -138,7 +142,11 @@ def _cmd_summary(a):
 def _cmd_diagnose(a):
     from .diagnose import run_diagnosis
 
-    run_diagnosis(a.flights, a.vehicle, a.out, a.overrides)
+    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
+    overrides = [f for f in a.flights if f not in flights]
+    if not flights:
+        raise QrInputError(None, "no flight given", "qr diagnose FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    run_diagnosis(flights, a.vehicle, a.out, overrides)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):

@@ -46,9 +46,17 @@ def residual_torque(alpha: np.ndarray, omega: np.ndarray, u: np.ndarray, vehicle
 
 
 def residuals(s, vehicle) -> np.ndarray:
-    """``[f_a, τ_a]`` (N, 6) from a :class:`qr.effects.Signals`."""
-    return np.hstack([residual_force(s.a_b, s.R, s.u, vehicle),
-                      residual_torque(s.alpha, s.omega, s.u, vehicle)])
+    """``[f_a, τ_a]`` (N, 6) from a :class:`qr.effects.Signals`.
+
+    Thrust and torques come from the signals' force-row and torque-row rotor
+    speeds (the same as ``u²`` unless matched ones are given; see qr.diagnose.matched).
+    """
+    from .effects import wrench
+
+    T, Gamma = wrench(s, vehicle)
+    f = vehicle.mass * s.a_b - nominal_force(s.R, T, vehicle.mass)
+    tau = s.alpha * vehicle.inertia - nominal_torque(s.omega, Gamma, vehicle.inertia)
+    return np.hstack([f, tau])
 
 
 def derivatives(p, v_w, q, omega, u, vehicle, f_a=None, tau_a=None):

@@ -32,12 +32,36 @@ class Signals:
     u: np.ndarray  # (N, 4) rotor speeds (vehicle unit)
     u_dot: np.ndarray  # (N, 4)
     p: np.ndarray  # (N, 3) tracked point, world
+    # Optional squared rotor speeds smoothed like the position (force rows) and the attitude
+    # (torque rows) estimates, and their rates: labels and designs built from them compare like
+    # with like (see qr.diagnose.matched).  None: use u² and 2 u u̇.
+    u2f: np.ndarray | None = None
+    u2f_dot: np.ndarray | None = None
+    u2t: np.ndarray | None = None
+    u2t_dot: np.ndarray | None = None
 
     def __len__(self):
         return len(self.u)
 
     def take(self, idx) -> "Signals":
-        return Signals(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
+        return Signals(*(None if getattr(self, f) is None else getattr(self, f)[idx]
+                         for f in self.__dataclass_fields__))
+
+    @property
+    def u2_force(self) -> np.ndarray:
+        return self.u**2 if self.u2f is None else self.u2f
+
+    @property
+    def u2_torque(self) -> np.ndarray:
+        return self.u**2 if self.u2t is None else self.u2t
+
+    @property
+    def u2_force_rate(self) -> np.ndarray:
+        return 2 * self.u * self.u_dot if self.u2f_dot is None else self.u2f_dot
+
+    @property
+    def u2_torque_rate(self) -> np.ndarray:
+        return 2 * self.u * self.u_dot if self.u2t_dot is None else self.u2t_dot
 
 
 @dataclass(frozen=True)
@@ -61,9 +85,13 @@ def _zeros(s, k):
     return np.zeros((len(s), 6, k))
 
 
-def _wrench(s, vehicle):
-    w = vehicle.rotors.wrench(s.u)
-    return w[:, 0], w[:, 1:]
+def wrench(s, vehicle):
+    """Nominal thrust (from the force-row rotor signal) and torques (from the torque-row one)."""
+    B = vehicle.rotors.matrix
+    return s.u2_force @ B[0], s.u2_torque @ B[1:].T
+
+
+_wrench = wrench
 
 
 def _linear_drag(s, v):
@@ -82,7 +110,7 @@ def _quadratic_drag(s, v):
 
 def _rotor_drag(s, v):
     D = _zeros(s, 1)
-    omega_sum = s.u.sum(axis=1)
+    omega_sum = np.sqrt(np.maximum(s.u2_force, 0.0)).sum(axis=1)
     D[:, 0, 0] = -omega_sum * s.v_b[:, 0]
     D[:, 1, 0] = -omega_sum * s.v_b[:, 1]
     return D
@@ -129,17 +157,17 @@ def _ground_effect(s, v):
 
 def _motor_imbalance(s, v):
     cols = v.rotors.rotor_wrench_columns()  # (4 wrench rows, n rotors)
-    u2 = s.u**2
+    uf, ut = s.u2_force, s.u2_torque
     D = _zeros(s, 4)
     for i in range(4):
-        D[:, 2, i] = cols[0, i] * u2[:, i]
-        D[:, 3, i] = cols[1, i] * u2[:, i]
-        D[:, 4, i] = cols[2, i] * u2[:, i]
+        D[:, 2, i] = cols[0, i] * uf[:, i]
+        D[:, 3, i] = cols[1, i] * ut[:, i]
+        D[:, 4, i] = cols[2, i] * ut[:, i]
     return D
 
 
 def _cg_offset(s, v):
-    T, _ = _wrench(s, v)
+    T = s.u2_torque @ v.rotors.matrix[0]  # a torque row: the attitude-matched signal
     D = _zeros(s, 2)
     D[:, 4, 0] = T  # rx: torque [0, rx T, 0]
     D[:, 3, 1] = -T  # ry: torque [-ry T, 0, 0]
@@ -170,11 +198,11 @@ def _inertia_error(s, v):
 
 
 def _actuator_delay(s, v):
-    # d/dt of the wrench B u² is B (2 u ⊙ u̇)
-    wdot = (2.0 * s.u * s.u_dot) @ v.rotors.matrix.T
+    # d/dt of the wrench B u² is B d(u²)/dt
+    B = v.rotors.matrix
     D = _zeros(s, 1)
-    D[:, 2, 0] = -wdot[:, 0]
-    D[:, 3:6, 0] = -wdot[:, 1:]
+    D[:, 2, 0] = -(s.u2_force_rate @ B[0])
+    D[:, 3:6, 0] = -(s.u2_torque_rate @ B[1:].T)
     return D
 
 
@@ -227,6 +255,40 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("blade_flapping", ("k",), ("N m s/m",), (0,), _blade_flapping, (3, 4),
            doc="torque k [v_by, -v_bx, 0]"),
 ]}
+
+
+def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter ranges a physical vehicle can have (generous: they only rule out nonsense).
+
+    Without them the catalog can "explain" any residual: mass_error dm = -m,
+    thrust_gain 0 and inertia_error dJ = -J together reproduce the residual's own
+    definition (a vehicle with no mass, no thrust and no inertia).
+    """
+    m, J = vehicle.mass, vehicle.inertia
+    arm = float(np.max(np.hypot(*vehicle.rotors.positions.T)))
+    mg = m * 9.81
+    hover_speed_sum = 4 * vehicle.hover_speed
+    inf = np.inf
+    table = {
+        "linear_drag": ([0, 0, 0], [20 * m] * 3),  # drag opposes motion; time constant >= 0.05 s
+        "quadratic_drag": ([0, 0, 0], [20 * m] * 3),
+        "rotor_drag": ([0], [20 * m / hover_speed_sum]),
+        "wind_force": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
+        "body_force_bias": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
+        "thrust_gain": ([0.5], [1.5]),
+        "mass_error": ([-0.5 * m], [1.0 * m]),
+        "ground_effect": ([0], [arm**2]),
+        "motor_imbalance": ([-0.3] * 4, [0.3] * 4),
+        "cg_offset": ([-arm / 2] * 2, [arm / 2] * 2),
+        "torque_bias": ([-0.25 * mg * arm] * 3, [0.25 * mg * arm] * 3),
+        "yaw_torque_gain": ([0.5], [1.5]),
+        "inertia_error": (list(-0.5 * J), list(1.0 * J)),
+        "actuator_delay": ([0], [0.1]),
+        "marker_offset": ([-2 * arm] * 3, [2 * arm] * 3),
+        "blade_flapping": ([-20 * m * arm], [20 * m * arm]),
+    }
+    lo, hi = table.get(name, ([-inf] * len(CATALOG[name].params), [inf] * len(CATALOG[name].params)))
+    return np.array(lo, float), np.array(hi, float)
 
 
 def get(name: str, path=None) -> Effect:

@@ -32,6 +32,11 @@ RATE = ["wx", "wy", "wz"]
 ANGULAR_ACCELERATION = ["alx", "aly", "alz"]
 ROTORS = ["u1", "u2", "u3", "u4"]
 ROTOR_RATES = ["ud1", "ud2", "ud3", "ud4"]
+# optional: squared rotor speeds smoothed like the position / attitude estimates, and rates
+U2_FORCE = ["u2f1", "u2f2", "u2f3", "u2f4"]
+U2_FORCE_RATE = ["u2fd1", "u2fd2", "u2fd3", "u2fd4"]
+U2_TORQUE = ["u2t1", "u2t2", "u2t3", "u2t4"]
+U2_TORQUE_RATE = ["u2td1", "u2td2", "u2td3", "u2td4"]
 COLUMNS = ["t", *POSITION, *VELOCITY, *ACCELERATION, *QUATERNION, *RATE, *ANGULAR_ACCELERATION, *ROTORS,
            *ROTOR_RATES]
 
@@ -39,9 +44,11 @@ COLUMNS = ["t", *POSITION, *VELOCITY, *ACCELERATION, *QUATERNION, *RATE, *ANGULA
 def signals(df: pd.DataFrame) -> Signals:
     """Body-frame :class:`qr.effects.Signals` of a state table."""
     R = quat_to_rot(df[QUATERNION].to_numpy())
+    opt = [df[c].to_numpy() if all(x in df for x in c) else None
+           for c in (U2_FORCE, U2_FORCE_RATE, U2_TORQUE, U2_TORQUE_RATE)]
     return Signals(R, to_body(R, df[VELOCITY].to_numpy()), to_body(R, df[ACCELERATION].to_numpy()),
                    df[RATE].to_numpy(), df[ANGULAR_ACCELERATION].to_numpy(), df[ROTORS].to_numpy(),
-                   df[ROTOR_RATES].to_numpy(), df[POSITION].to_numpy())
+                   df[ROTOR_RATES].to_numpy(), df[POSITION].to_numpy(), *opt)
 
 
 def check(df: pd.DataFrame, path=None) -> None:

@@ -1,0 +1,49 @@
+"""Wall-clock time of `qr diagnose` (filtering + identification + replay + report).
+
+    .venv/bin/python benchmarks/diagnose.py            # 90 s at 100 Hz, then 1 h at 400 Hz
+    .venv/bin/python benchmarks/diagnose.py --short    # only the 90 s flight
+
+Targets (issue 5): 90 s / 100 Hz under 60 s, 1 h / 400 Hz under 10 min, on this machine.
+Numba kernels are compiled (and cached) by a warm-up run first.
+"""
+
+import argparse
+import os
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("QR_TRACKING", "off")
+
+from qr.config import vehicle_path  # noqa: E402
+from qr.diagnose import run_diagnosis  # noqa: E402
+from qr.effects import parse_effect_spec  # noqa: E402
+from qr.sim.synth import SynthConfig, write_synth  # noqa: E402
+from qr.vehicle import load_vehicle  # noqa: E402
+
+
+def case(tmp: Path, duration: float, rate: float, tag: str) -> float:
+    vehicle = load_vehicle(vehicle_path("asctec_hummingbird"))
+    effects = [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15"), parse_effect_spec("cg_offset:rx=0.01")]
+    t0 = time.perf_counter()
+    write_synth(tmp / tag, vehicle, effects, SynthConfig(duration=duration, rate=rate, seed=1))
+    t_synth = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    doc = run_diagnosis([tmp / tag / "flight.csv"], tmp / tag / "vehicle.yaml", tmp / f"{tag}-out", log=lambda m: None)
+    dt = time.perf_counter() - t0
+    print(f"{tag:>14}: {duration:6.0f} s at {rate:3.0f} Hz ({int(duration * rate):>9,} samples): "
+          f"diagnose {dt:7.1f} s   [synth {t_synth:.1f} s]   named: {', '.join(e['name'] for e in doc['effects'])}")
+    return dt
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--short", action="store_true")
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        case(tmp, 20, 100, "warm-up")
+        case(tmp, 90, 100, "90 s flight")
+        if not a.short:
+            case(tmp, 3600, 400, "1-hour flight")

@@ -1,0 +1,300 @@
+"""The diagnosis of one or more filtered flights: residuals, effects, extended model, gains.
+
+``diagnose`` takes state tables (from the filters) and the raw flights (for the
+replay against measurements) and returns everything ``diagnosis.json`` and the
+report need.  It does no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from ..dynamics import residuals
+from ..effects import CATALOG, Signals, plausible_bounds, total_term
+from ..states import signals
+from . import replay as replay_mod
+from .noise import noise_sd
+from .selection import (BlockStats, Columns, SelectionConfig, accumulate, bootstrap, design, fit,
+                        forward_select, loss, solve)
+
+AXES = ["fx", "fy", "fz", "tx", "ty", "tz"]
+CHUNK = 20000
+
+
+@dataclass
+class DiagnoseConfig:
+    horizon_s: float = 1.0
+    train_fraction: float = 0.7
+    gap_s: float = 1.0
+    block_s: float = 2.0
+    trim_s: float = 0.5
+    candidates: list[str] | None = None  # None: the whole catalog
+    exclude: list[str] = field(default_factory=list)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    remainder_inputs: list[str] = field(default_factory=lambda: ["v_b", "u", "q", "omega", "p"])
+    remainder_min_gain: float = 0.05
+    delay_max_s: float = 0.1
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "DiagnoseConfig":
+        d = dict(d or {})
+        sel = SelectionConfig(**d.pop("selection", {}) or {})
+        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        return cls(selection=sel, **known)
+
+
+@dataclass
+class Prepared:
+    """All flights stacked: signals, residual labels, noise, and where each sample belongs."""
+
+    s: Signals
+    y: np.ndarray  # (N, 6)
+    sd: np.ndarray  # (N, 6)
+    t: np.ndarray
+    flight: np.ndarray  # flight index per sample
+    train: np.ndarray  # bool
+    test: np.ndarray  # bool
+    block: np.ndarray  # block id per training sample (-1 elsewhere)
+    windows: list[dict]  # per flight: train/test windows in flight time
+
+
+def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Prepared:
+    parts, blocks_next = [], 0
+    windows = []
+    for i, st in enumerate(states_list):
+        t = st["t"].to_numpy()
+        keep = (t >= t[0] + cfg.trim_s) & (t <= t[-1] - cfg.trim_s)
+        st = st[keep].reset_index(drop=True)
+        t = t[keep]
+        s = signals(st)
+        y = residuals(s, vehicle)
+        if vehicle.effects:  # an extended vehicle: diagnose what its effects leave
+            y = y - total_term(vehicle.effects, s, vehicle)
+        sd = noise_sd(st, s.R, vehicle, y)
+        t0, t1 = t[0], t[-1]
+        cut = t0 + cfg.train_fraction * (t1 - t0)
+        train = t < cut - cfg.gap_s / 2
+        test = t >= cut + cfg.gap_s / 2
+        block = np.full(len(t), -1)
+        rel = t[train] - t0
+        block[train] = blocks_next + (rel // cfg.block_s).astype(int)
+        if train.any():
+            used = np.unique(block[train])
+            remap = {b: blocks_next + j for j, b in enumerate(used)}
+            block[train] = [remap[b] for b in block[train]]
+            blocks_next += len(used)
+        windows.append({"train": [0.0, float(cut - cfg.gap_s / 2 - t0)],
+                        "test": [float(cut + cfg.gap_s / 2 - t0), float(t1 - t0)]})
+        parts.append((s, y, sd, t, np.full(len(t), i), train, test, block))
+    cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
+    s_all = Signals(*(np.concatenate([getattr(p[0], f) for p in parts])
+                      for f in Signals.__dataclass_fields__))
+    return Prepared(s_all, cat(1), cat(2), cat(3), cat(4), cat(5), cat(6), cat(7), windows)
+
+
+def prepare_cross(pairs: list[tuple[pd.DataFrame, pd.DataFrame]], vehicle, cfg: DiagnoseConfig) -> Prepared:
+    """Fitting data from disjoint-measurement filters: labels of one half, regressors of the other."""
+    a = prepare([p[0] for p in pairs], vehicle, cfg)
+    b = prepare([p[1] for p in pairs], vehicle, cfg)
+    s = Signals(*(np.concatenate([getattr(b.s, f), getattr(a.s, f)]) for f in Signals.__dataclass_fields__))
+    cat = lambda k: np.concatenate([getattr(a, k), getattr(b, k)])  # noqa: E731
+    return Prepared(s, cat("y"), cat("sd"), cat("t"), cat("flight"), cat("train"), cat("test"), cat("block"),
+                    a.windows)
+
+
+def weights(sd: np.ndarray) -> np.ndarray:
+    floor = 1e-3 * np.nanmedian(sd, axis=0)
+    return 1.0 / np.maximum(sd, floor) ** 2
+
+
+def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = None) -> BlockStats:
+    y = prep.y if y is None else y
+    idx = np.flatnonzero(prep.train)
+    n_blocks = int(prep.block[idx].max()) + 1 if idx.size else 0
+    p = cols.size
+    G, h, s, n = np.zeros((n_blocks, p, p)), np.zeros((n_blocks, p)), np.zeros(n_blocks), np.zeros(n_blocks)
+    w = weights(prep.sd)
+    lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
+    ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
+    for start in range(0, idx.size, CHUNK):
+        sl = idx[start:start + CHUNK]
+        X = design(prep.s.take(sl), vehicle, cols)
+        g_, h_, s_, n_ = accumulate(X, y[sl], w[sl], prep.block[sl], n_blocks)
+        G += g_
+        h += h_
+        s += s_
+        n += n_
+    return BlockStats(G, h, s, n, cols, lb, ub)
+
+
+def predict(s: Signals, vehicle, effects: list[str], theta: np.ndarray) -> np.ndarray:
+    if not effects:
+        return np.zeros((len(s), 6))
+    cols = Columns.of(effects)
+    out = np.zeros((len(s), 6))
+    for start in range(0, len(s), CHUNK):
+        sl = slice(start, start + CHUNK)
+        out[sl] = design(s.take(sl), vehicle, cols) @ theta
+    return out
+
+
+def extended_prediction(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, idx=None) -> np.ndarray:
+    """Terms of the named effects on samples ``idx`` of ``prep``; the delay by its exact map."""
+    idx = np.arange(len(prep.t)) if idx is None else idx
+    s = prep.s.take(idx)
+    if "actuator_delay" not in named:
+        return predict(s, vehicle, named, theta)
+    others = [e for e in named if e != "actuator_delay"]
+    cols = Columns.of(named)
+    d = float(theta[cols.slices["actuator_delay"]][0])
+    return predict(s, vehicle, others, theta[cols.index(others)]) + exact_delay_term(prep, vehicle, d)[idx]
+
+
+def to_parameters(effects: list[str], theta: np.ndarray, se: np.ndarray | None = None):
+    out, cols = [], Columns.of(effects)
+    for e in effects:
+        sl = cols.slices[e]
+        eff = CATALOG[e]
+        params = {p: float(v + n) for p, v, n in zip(eff.params, theta[sl], eff.neutral)}
+        errs = {p: float(x) for p, x in zip(eff.params, se[sl])} if se is not None else {}
+        out.append({"name": e, "parameters": params, "stderr": errs})
+    return out
+
+
+def rms(x: np.ndarray, axis=0) -> np.ndarray:
+    return np.sqrt(np.nanmean(x**2, axis=axis))
+
+
+def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, cfg: DiagnoseConfig):
+    """Replace actuator_delay's first-order term by the exact delayed rotor map (1-D search).
+
+    Returns the refined delay and the other effects' parameters.
+    """
+    from scipy.optimize import minimize_scalar
+
+    others = [e for e in named if e != "actuator_delay"]
+    cols = Columns.of(others)
+
+    def train_loss(d):
+        yd = prep.y - exact_delay_term(prep, vehicle, d)
+        st = block_stats(prep, vehicle, cols, yd)
+        th = fit(st, others) if others else np.zeros(0)
+        G, h, s, n = st.subset(np.arange(len(st.s)))
+        return loss(G, h, s, n, th), th
+
+    d1 = float(theta[Columns.of(named).slices["actuator_delay"]][0])
+    hi = min(cfg.delay_max_s, max(3 * abs(d1), 0.01))
+    res = minimize_scalar(lambda d: train_loss(d)[0], bounds=(0.0, hi), method="bounded",
+                          options={"xatol": 1e-4})
+    d = float(res.x)
+    return d, train_loss(d)[1]
+
+
+def exact_delay_term(prep: Prepared, vehicle, d: float) -> np.ndarray:
+    """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6)."""
+    term = np.zeros_like(prep.y)
+    B = vehicle.rotors.matrix
+    uf, ut = prep.s.u2_force, prep.s.u2_torque
+    # the stacked halves repeat time: interpolate within each contiguous run of increasing t
+    starts = np.flatnonzero(np.concatenate([[True], (np.diff(prep.t) <= 0) | (np.diff(prep.flight) != 0)]))
+    for a, b in zip(starts, list(starts[1:]) + [len(prep.t)]):
+        t = prep.t[a:b]
+        shift = lambda x: np.column_stack([np.interp(t - d, t, x[a:b, k]) for k in range(4)])  # noqa: E731
+        term[a:b, 2] = (shift(uf) - uf[a:b]) @ B[0]
+        term[a:b, 3:] = (shift(ut) - ut[a:b]) @ B[1:].T
+    return term
+
+
+def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame], vehicle,
+             cfg: DiagnoseConfig, seed: int = 0, progress=None, pairs=None) -> dict:
+    """``pairs``: per flight the (even, odd) half-sample state tables for cross-fitting (recommended)."""
+    step = progress or (lambda msg: None)
+    prep = prepare(states_list, vehicle, cfg)
+    fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
+    candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
+    cols = Columns.of(candidates)
+    step("normal equations")
+    stats = block_stats(fitprep, vehicle, cols)
+    step("selection")
+    sel = forward_select(stats, cfg.selection)
+    named = sel.named
+    theta = fit(stats, named) if named else np.zeros(0)
+    step("bootstrap")
+    boot = bootstrap(stats, named, cfg.selection.bootstrap, seed) if named else np.zeros((0, 0))
+    se = boot.std(axis=0) if named else np.zeros(0)
+
+    test = prep.test
+    s_test = prep.s.take(np.flatnonzero(test))
+    y_test = prep.y[test]
+    if "actuator_delay" in named:
+        step("exact delay")
+        d, th_other = refine_delay(fitprep, vehicle, named, theta, cfg)
+        others = [e for e in named if e != "actuator_delay"]
+        theta = theta.copy()
+        theta[Columns.of(named).index(others)] = th_other
+        theta[Columns.of(named).slices["actuator_delay"]] = d
+    pred_test = extended_prediction(prep, vehicle, named, theta, np.flatnonzero(test))
+    effects = to_parameters(named, theta, se)
+
+    # held-out evaluation
+    w_test = weights(prep.sd)[test]
+    base_loss = float(np.nanmean(w_test * y_test**2))
+    ext_resid = y_test - pred_test
+    explained = {}
+    for e in named:
+        rest = [x for x in named if x != e]
+        th_rest = fit(stats, rest) if rest else np.zeros(0)
+        r_rest = y_test - predict(s_test, vehicle, rest, th_rest)
+        explained[e] = float((np.nanmean(w_test * r_rest**2) - np.nanmean(w_test * ext_resid**2)) / base_loss)
+    for e in effects:
+        e["explained_fraction"] = explained[e["name"]]
+        e["confounded_with"] = sel.confounded.get(e["name"], [])
+
+    result = {
+        "samples": int(len(prep.t)),
+        "windows": prep.windows,
+        "nominal_rmse": rms(y_test).tolist(),
+        "extended_rmse": rms(ext_resid).tolist(),
+        "noise_floor_rmse": rms(prep.sd[test]).tolist(),
+        "nominal_loss": base_loss,
+        "extended_loss": float(np.nanmean(w_test * ext_resid**2)),
+        "effects": effects,
+        "selection": {"steps": sel.steps, "cv_loss_nominal": sel.loss_nominal, "cv_loss_final": sel.loss_final},
+        "bootstrap": boot,
+        "prep": prep,
+        "fitprep": fitprep,
+        "theta": theta,
+        "named": named,
+        "pred_test": pred_test,
+    }
+    step("replay")
+    result["replay"] = _replay_all(states_list, measured_list, vehicle, effects, cfg, prep)
+    return result
+
+
+def extended_effects(effects: list[dict]) -> list[dict]:
+    return [{"name": e["name"], "parameters": e["parameters"]} for e in effects]
+
+
+def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
+    out = {"nominal": [], "extended": []}
+    for i, (st, meas) in enumerate(zip(states_list, measured_list)):
+        meas = meas.set_index("t").reindex(st["t"].to_numpy(), method="nearest", tolerance=1e-6).reset_index()
+        for key, eff in (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects))):
+            err = replay_mod.replay(st, meas, vehicle, eff, cfg.horizon_s)
+            w = prep.windows[i]
+            err["test"] = err["t"] - err["t"].iloc[0] >= w["test"][0]
+            err["flight"] = i
+            out[key].append(err)
+    res = {}
+    for key in out:
+        err = pd.concat(out[key], ignore_index=True)
+        err["window"] = err["flight"] * 100000 + err["window"]
+        # a window belongs to the test part when it starts there
+        start_test = err.groupby("window")["test"].transform("first")
+        res[key] = {"errors": err, "summary": replay_mod.summarise(err, cfg.horizon_s, start_test.to_numpy()),
+                    "growth": replay_mod.growth(err[start_test.to_numpy()], cfg.horizon_s)}
+    return res

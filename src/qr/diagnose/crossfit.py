@@ -1,0 +1,78 @@
+"""Cross-fitting: labels and regressors from filters that saw disjoint measurements.
+
+The residual label ``f_a = m â - ...`` and many effect designs are built from
+the same estimates (``â`` in ``mass_error``, ``α̂`` in ``inertia_error``,
+``T(û)`` and ``Γ(û)`` in the label and in ``thrust_gain``...).  Regressing a
+label on its own noise "explains" that noise: with one filter, pairs such as
+``inertia_error`` + ``yaw_torque_gain`` reproduce a scaled copy of the label and
+win cross-validation on pure noise.  So the flight is filtered twice more, once
+on the even and once on the odd samples (the others treated as dropouts, with
+the noise settings of the full-flight filter): their estimation errors are
+independent, and effects are selected and fitted on labels from one half with
+regressors from the other (both pairings stacked).  The held-out evaluation uses
+the full-flight filter.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pandas as pd
+
+from ..estimation import estimate
+from .matched import add_matched_rotor_signals
+
+MEASURED = ["px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"]
+
+
+def fixed_settings(filter_cfg: dict, report: dict) -> dict:
+    """The filter settings the full flight ended up with (tuned values frozen)."""
+    cfg = copy.deepcopy(dict(filter_cfg))
+    tuned = (report or {}).get("tuning") or {}
+    if tuned:
+        cfg.setdefault("tune", {})["enabled"] = False
+        for f, v in tuned.items():
+            cfg.setdefault(f, {})
+            cfg[f] = dict(cfg[f], q=v["q"], r=v["r"])
+    return cfg
+
+
+def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1.0) -> dict:
+    """Frozen settings with the rotor filters' bandwidth raised to the attitude and position filters'.
+
+    The labels subtract ``T(û)`` from ``m â`` and ``Γ(û)`` from ``J α̂``; a rotor
+    filter smoother than the others leaves ``(1 - H) J α`` in the torque label,
+    which ``inertia_error`` or ``thrust_gain`` would then "explain".  Rotor speeds
+    are measured directly and precisely, so matching costs little noise.
+    """
+    from ..estimation.settings import resolve
+    from ..estimation.tuning import ORDER, corner_hz
+
+    cfg = resolve(fixed_settings(filter_cfg, report))
+    q_att = float(np.exp(np.mean(np.log(np.atleast_1d(cfg["attitude"]["q"])))))
+    f = min(corner_hz(cfg["position"]["q"], cfg["position"]["r"], ORDER["position"]),
+            corner_hz(q_att, cfg["attitude"]["r"], ORDER["attitude"]))
+    r_m = cfg["motor"]["r"]
+    q_m = r_m * (2 * np.pi * f) ** (2 * ORDER["motor"])
+    cfg["motor"]["q"] = max(float(cfg["motor"]["q"]), float(q_m))
+    # optionally widen every filter alike: less attenuation (bias) for more noise
+    for name in ("position", "attitude", "motor"):
+        k = bandwidth_factor ** (2 * ORDER[name])
+        q = cfg[name]["q"]
+        cfg[name]["q"] = [x * k for x in q] if isinstance(q, list) else q * k
+    cfg["tune"]["enabled"] = False
+    return cfg
+
+
+def halves(flight: pd.DataFrame, vehicle, cfg: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """State tables of the even-sample and the odd-sample filters (settings ``cfg``), at every stamp."""
+    out = []
+    for parity in (0, 1):
+        f = flight.copy()
+        f.loc[f.index % 2 != parity, MEASURED] = np.nan
+        # keep the first rows measured so each filter starts from data
+        f.loc[:1, MEASURED] = flight.loc[:1, MEASURED]
+        st, _ = estimate(f, vehicle, cfg)
+        out.append(add_matched_rotor_signals(st, f, cfg))
+    return out[0], out[1]

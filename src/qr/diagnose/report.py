@@ -1,0 +1,233 @@
+"""``diagnosis.json`` (the machine contract of ../shared/spec/diagnosis.md) and ``report.md``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..effects import CATALOG
+from ..report import figures
+from .core import AXES, rms
+
+SCHEMA = "qr.diagnosis/1"
+
+
+def _r(x, n=6):
+    return [float(f"{v:.{n}g}") for v in x]
+
+
+def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
+    rep_n, rep_e = res["replay"]["nominal"]["summary"], res["replay"]["extended"]["summary"]
+    effects = [{
+        "name": e["name"],
+        "parameters": {k: float(f"{v:.6g}") for k, v in e["parameters"].items()},
+        "stderr": {k: float(f"{v:.3g}") for k, v in e["stderr"].items()},
+        "explained_fraction": float(f"{e['explained_fraction']:.4g}"),
+        "confounded_with": list(e["confounded_with"]),
+    } for e in res["effects"]]
+    w0 = res["windows"][0]
+    return {
+        "schema": SCHEMA,
+        "flights": flight_names,
+        "samples": res["samples"],
+        "split": {"train": _r(w0["train"], 5), "test": _r(w0["test"], 5),
+                  "per_flight": [{"train": _r(w["train"], 5), "test": _r(w["test"], 5)} for w in res["windows"]]},
+        "nominal": {"force_rmse": _r(res["nominal_rmse"][:3]), "torque_rmse": _r(res["nominal_rmse"][3:])},
+        "effects": effects,
+        "extended": {"force_rmse": _r(res["extended_rmse"][:3]), "torque_rmse": _r(res["extended_rmse"][3:])},
+        "replay": {
+            "horizon_s": float(cfg_dict["horizon_s"]),
+            "nominal_position_rmse": float(f"{rep_n.get('position_rmse', float('nan')):.6g}"),
+            "extended_position_rmse": float(f"{rep_e.get('position_rmse', float('nan')):.6g}"),
+            "nominal_position_rmse_axes": _r(rep_n.get("position_rmse_axes", [])),
+            "extended_position_rmse_axes": _r(rep_e.get("position_rmse_axes", [])),
+            "nominal_attitude_rmse_deg": float(f"{rep_n.get('attitude_rmse_deg', float('nan')):.4g}"),
+            "extended_attitude_rmse_deg": float(f"{rep_e.get('attitude_rmse_deg', float('nan')):.4g}"),
+            "windows": rep_n.get("windows", 0),
+        },
+        "noise_floor": {"force_rmse": _r(res["noise_floor_rmse"][:3]), "torque_rmse": _r(res["noise_floor_rmse"][3:]),
+                        "source": res.get("noise_source", "filter covariance")},
+        "remainder": res.get("remainder", {}),
+        "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
+                      "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
+                      "steps": [_clean(s) for s in res["selection"]["steps"]]},
+        "verdict": verdict(res),
+        "config": cfg_dict,
+    }
+
+
+def _clean(step: dict) -> dict:
+    out = {}
+    for k, v in step.items():
+        if isinstance(v, float):
+            out[k] = float(f"{v:.4g}")
+        elif isinstance(v, dict):
+            out[k] = {kk: float(f"{vv:.4g}") for kk, vv in list(v.items())[:6]}
+        else:
+            out[k] = v
+    return out
+
+
+def verdict(res: dict) -> str:
+    nom, noise = np.array(res["nominal_rmse"]), np.array(res["noise_floor_rmse"])
+    ratio = res["nominal_loss"]
+    if not res["effects"]:
+        rem = res.get("remainder", {})
+        tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
+                if rem.get("structure_remains") else "")
+        return (f"Nothing named: the nominal model explains this flight up to noise (weighted residual "
+                f"{ratio:.2f} x the noise floor's variance on held-out data).{tail}")
+    names = ", ".join(e["name"] for e in res["effects"])
+    gain = 1 - res["extended_loss"] / res["nominal_loss"]
+    return (f"Named {names}; the extended model removes {100 * gain:.0f} % of the nominal model's weighted "
+            f"held-out residual variance (now {res['extended_loss']:.2f} x the noise floor's variance).")
+
+
+def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
+    L = []
+    L.append(f"# Diagnosis: {', '.join(doc['flights'])}\n")
+    L.append(f"**{doc['verdict']}**\n")
+    L.append(f"{doc['samples']} samples; trained on {doc['split']['train'][0]:.1f}-{doc['split']['train'][1]:.1f} s, "
+             f"tested on {doc['split']['test'][0]:.1f}-{doc['split']['test'][1]:.1f} s of each flight "
+             "(all numbers below are on the held-out part).\n")
+    L.append("## How far the nominal model is off\n")
+    L.append("| axis | nominal RMSE | extended RMSE | noise floor | extended / noise |")
+    L.append("|---|---:|---:|---:|---:|")
+    for i, a in enumerate(AXES):
+        unit = "N" if i < 3 else "N m"
+        n, e, f = res["nominal_rmse"][i], res["extended_rmse"][i], res["noise_floor_rmse"][i]
+        L.append(f"| {a} ({unit}) | {n:.4g} | {e:.4g} | {f:.4g} | {e / f:.2f} |")
+    L.append("")
+    L.append("## Named causes\n")
+    if doc["effects"]:
+        L.append("| effect | parameters (± block-bootstrap s.e.) | explained fraction | confounded with |")
+        L.append("|---|---|---:|---|")
+        for e in doc["effects"]:
+            par = ", ".join(f"{k} = {v:.4g} ± {e['stderr'].get(k, float('nan')):.2g}" for k, v in e["parameters"].items())
+            L.append(f"| `{e['name']}` | {par} | {e['explained_fraction']:.3f} | "
+                     f"{', '.join(e['confounded_with']) or '-'} |")
+        L.append("")
+        for e in doc["effects"]:
+            L.append(f"- `{e['name']}`: {CATALOG[e['name']].doc}.")
+            if e["confounded_with"]:
+                L.append(f"  On this flight it cannot be told apart from {', '.join(e['confounded_with'])}; "
+                         "the simpler one is named.")
+        L.append("")
+    else:
+        L.append("None: no catalog effect improves the cross-validated fit by more than "
+                 f"{100 * doc['config']['selection']['min_gain']:.0f} % of the residual.\n")
+    L.append("Selection path (cross-validated loss in noise-variance units):\n")
+    L.append("| step | best candidate | gain | folds improved | decision |")
+    L.append("|---:|---|---:|---:|---|")
+    for i, s in enumerate(doc["selection"]["steps"]):
+        if "dropped" in s:
+            L.append(f"| {i + 1} | {s['dropped']} | - | - | dropped (redundant) |")
+            continue
+        dec = f"named `{s['named']}`" if s.get("accepted") else "stop"
+        if s.get("confounded"):
+            dec += f" (confounded: {', '.join(s['confounded'])})"
+        L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {dec} |")
+    L.append("")
+    rem = doc.get("remainder") or {}
+    if rem:
+        L.append("## Beyond the catalog\n")
+        L.append(rem.get("statement", ""))
+        L.append("")
+    r = doc["replay"]
+    L.append(f"## Open-loop replay (restarted every {r['horizon_s']:g} s, driven by the measured rotor speeds)\n")
+    L.append("| model | position RMSE at horizon (m) | x | y | z | attitude (deg) |")
+    L.append("|---|---:|---:|---:|---:|---:|")
+    for k in ("nominal", "extended"):
+        ax = r[f"{k}_position_rmse_axes"] or [float("nan")] * 3
+        L.append(f"| {k} | {r[f'{k}_position_rmse']:.4g} | {ax[0]:.3g} | {ax[1]:.3g} | {ax[2]:.3g} | "
+                 f"{r[f'{k}_attitude_rmse_deg']:.3g} |")
+    L.append("")
+    L.append("## Figures\n")
+    for title, name in figs.items():
+        L.append(f"### {title}\n\n![{title}](figures/{name})\n")
+    L.append("## Extended model\n")
+    L.append("`extended_vehicle.yaml`: the nominal vehicle plus the named effects; `qr synth`, the replay and the "
+             "simulation study accept it.\n")
+    from ..atomic import write_text
+
+    write_text(outdir / "report.md", "\n".join(L) + "\n")
+
+
+def make_figures(outdir: Path, res: dict, vehicle) -> dict:
+    figdir = outdir / "figures"
+    figdir.mkdir(exist_ok=True)
+    prep = res["prep"]
+    test = prep.test
+    t = prep.t[test]
+    y = prep.y[test]
+    pred = res["pred_test"]
+    out = {}
+
+    fig, axs = figures.subplots(6, 1, figsize=(8, 9), sharex=True)
+    for i, ax in enumerate(axs):
+        ax.plot(t, y[:, i], lw=0.6, color="grey", label="residual (nominal model)")
+        ax.plot(t, pred[:, i], lw=0.9, color="C3", label="named effects")
+        ax.set_ylabel(AXES[i] + (" (N)" if i < 3 else " (N m)"))
+    axs[0].legend(fontsize=7, loc="upper right")
+    axs[-1].set_xlabel("t (s), held-out part")
+    figures.save(fig, figdir / "residual_vs_effects.png")
+    out["Residual force and torque on held-out data, and what the named effects explain"] = "residual_vs_effects.png"
+
+    fig, axs = figures.subplots(1, 2, figsize=(9, 3.2))
+    for key, c in (("nominal", "grey"), ("extended", "C3")):
+        g = res["replay"][key]["growth"]
+        for j, a in enumerate("xyz"):
+            axs[0].plot(g["elapsed"], g[f"e{a}"], color=c, ls=["-", "--", ":"][j], label=f"{key} {a}")
+    axs[0].set_xlabel("time since restart (s)")
+    axs[0].set_ylabel("RMS position error (m)")
+    axs[0].legend(fontsize=6, ncol=2)
+    err = res["replay"]["nominal"]["errors"]
+    err = err[np.isfinite(err["ex"])]
+    last = err.groupby("window").tail(1)
+    worst = last.assign(e=np.sqrt(last.ex**2 + last.ey**2 + last.ez**2)).nlargest(3, "e")["window"]
+    for k, wdw in enumerate(worst):
+        for key, c in (("nominal", "grey"), ("extended", "C3")):
+            e = res["replay"][key]["errors"]
+            e = e[e["window"] == wdw]
+            axs[1].plot(e["elapsed"], np.sqrt(e.ex**2 + e.ey**2 + e.ez**2), color=c, lw=1,
+                        label=key if k == 0 else None)
+    axs[1].set_xlabel("time since restart (s)")
+    axs[1].set_ylabel("position error (m)")
+    axs[1].set_title("three worst windows", fontsize=8)
+    axs[1].legend(fontsize=7)
+    figures.save(fig, figdir / "replay_drift.png")
+    out["Open-loop replay: drift of the nominal and extended models"] = "replay_drift.png"
+
+    s = prep.s
+    T, _ = vehicle.rotors.thrust_torque(s.u)
+    regs = {"v_bx (m/s)": s.v_b[:, 0], "v_by (m/s)": s.v_b[:, 1], "v_bz (m/s)": s.v_b[:, 2],
+            "height (m)": s.p[:, 2] - vehicle.ground_z, "thrust T (N)": T}
+    for i in range(4):
+        regs[f"u{i + 1}"] = s.u[:, i]
+    fig, axs = figures.subplots(6, len(regs), figsize=(2.0 * len(regs), 9), sharey="row")
+    for j, (name, x) in enumerate(regs.items()):
+        for i in range(6):
+            ax = axs[i, j]
+            ax.plot(x, prep.y[:, i], ",", alpha=0.3, color="grey")
+            _binned(ax, x, prep.y[:, i])
+            if j == 0:
+                ax.set_ylabel(AXES[i], fontsize=7)
+            if i == 5:
+                ax.set_xlabel(name, fontsize=7)
+            ax.tick_params(labelsize=6)
+    figures.save(fig, figdir / "residual_anatomy.png")
+    out["Residual anatomy: nominal residual against body velocity, height, thrust and each rotor's speed"] = \
+        "residual_anatomy.png"
+    return out
+
+
+def _binned(ax, x, y, bins=15):
+    ok = np.isfinite(x) & np.isfinite(y)
+    if ok.sum() < bins * 5:
+        return
+    edges = np.quantile(x[ok], np.linspace(0, 1, bins + 1))
+    idx = np.clip(np.digitize(x[ok], edges) - 1, 0, bins - 1)
+    mx = np.array([x[ok][idx == b].mean() for b in range(bins)])
+    my = np.array([y[ok][idx == b].mean() for b in range(bins)])
+    ax.plot(mx, my, color="C3", lw=1.2)

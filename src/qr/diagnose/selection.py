@@ -1,0 +1,312 @@
+"""Which catalog effects are present: forward selection with blocked cross-validation.
+
+Every catalog term is linear in its parameters, so the whole search runs on
+per-block normal equations.  For blocks ``b`` (contiguous time, ~2 s) we keep
+``G_b = Xᵀ W X``, ``h_b = Xᵀ W y``, ``s_b = yᵀ W y`` over all candidate columns;
+any subset's least-squares fit on any set of blocks, and its loss on any other
+set, are then a few small matrix operations.  ``W`` weighs each of the six
+residual axes by the inverse noise variance, so the loss is in units of the
+noise floor (≈ 1 when only noise is left).
+
+Selection: start from the nominal model; add the effect whose cross-validated
+loss gain is largest while that gain exceeds ``min_gain`` of the current loss
+and holds in most folds (stability); effects nearly as good as the winner whose
+fitted terms are collinear with it are *confounded*: the simplest of them is
+named, the others reported in ``confounded_with`` and never named.  A backward
+pass drops effects later ones made redundant.  Parameters are refit on all
+training blocks; standard errors come from a block bootstrap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..effects import CATALOG, Signals
+
+
+@dataclass
+class Columns:
+    """Where each candidate effect's parameters sit in the stacked design."""
+
+    effects: list[str]
+    slices: dict[str, slice]
+
+    @classmethod
+    def of(cls, effects):
+        slices, j = {}, 0
+        for e in effects:
+            k = len(CATALOG[e].params)
+            slices[e] = slice(j, j + k)
+            j += k
+        return cls(list(effects), slices)
+
+    @property
+    def size(self) -> int:
+        return sum(s.stop - s.start for s in self.slices.values())
+
+    def index(self, effects) -> np.ndarray:
+        return np.concatenate([np.arange(self.slices[e].start, self.slices[e].stop) for e in effects]) \
+            if effects else np.zeros(0, dtype=int)
+
+
+def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
+    """Stacked design (N, 6, p) of all candidate effects."""
+    if not cols.effects:
+        return np.zeros((len(s), 6, 0))
+    return np.concatenate([CATALOG[e].design(s, vehicle) for e in cols.effects], axis=2)
+
+
+@dataclass
+class BlockStats:
+    """Per-block normal equations."""
+
+    G: np.ndarray  # (B, p, p)
+    h: np.ndarray  # (B, p)
+    s: np.ndarray  # (B,)
+    n: np.ndarray  # (B,) weighted sample-axis count
+    cols: Columns
+    lb: np.ndarray | None = None  # plausible parameter range (minus neutral values), per column
+    ub: np.ndarray | None = None
+
+    def bounds(self, idx):
+        if self.lb is None:
+            return None, None
+        return self.lb[idx], self.ub[idx]
+
+    def subset(self, blocks) -> tuple[np.ndarray, np.ndarray, float, float]:
+        return self.G[blocks].sum(0), self.h[blocks].sum(0), float(self.s[blocks].sum()), float(self.n[blocks].sum())
+
+
+def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int):
+    """Add a chunk's contribution to per-block normal equations.
+
+    ``X`` (N, 6, p), ``y`` (N, 6), ``w`` (N, 6) weights, ``block_id`` (N,) sorted.
+    """
+    p = X.shape[2]
+    G = np.zeros((n_blocks, p, p))
+    h = np.zeros((n_blocks, p))
+    s = np.zeros(n_blocks)
+    n = np.zeros(n_blocks)
+    ok = np.isfinite(y).all(axis=1) & np.isfinite(X).all(axis=(1, 2))
+    edges = np.flatnonzero(np.diff(block_id)) + 1
+    for idx in np.split(np.arange(len(block_id)), edges):
+        idx = idx[ok[idx]]
+        if idx.size == 0:
+            continue
+        b = block_id[idx[0]]
+        Xb = X[idx].reshape(idx.size * 6, p)
+        wb = w[idx].reshape(-1)
+        yb = y[idx].reshape(-1)
+        Xw = Xb * wb[:, None]
+        G[b] += Xb.T @ Xw
+        h[b] += Xw.T @ yb
+        s[b] += float(yb @ (wb * yb))
+        n[b] += idx.size * 6
+    return G, h, s, n
+
+
+def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -> np.ndarray:
+    """Least squares from normal equations (scaled, tiny ridge), within bounds if given."""
+    if G.size == 0:
+        return np.zeros(0)
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs = G / np.outer(d, d)
+    Gs[np.diag_indices_from(Gs)] += ridge
+    theta = np.linalg.solve(Gs, h / d) / d
+    if lb is None or (np.all(theta >= lb) and np.all(theta <= ub)):
+        return theta
+    # bounded: min ||Lᵀ x - L⁻¹ h||² with G = L Lᵀ is the same quadratic
+    from scipy.linalg import cho_factor, solve_triangular
+    from scipy.optimize import lsq_linear
+
+    L, _ = cho_factor(Gs, lower=True)
+    L = np.tril(L)
+    b = solve_triangular(L, h / d, lower=True)
+    res = lsq_linear(L.T, b, bounds=(lb * d, ub * d), method="bvls")
+    return res.x / d
+
+
+def loss(G, h, s, n, theta) -> float:
+    return float((s - 2 * theta @ h + theta @ G @ theta) / max(n, 1.0))
+
+
+@dataclass
+class SelectionConfig:
+    folds: int = 5
+    min_gain: float = 0.01  # accept an effect only if it cuts the CV loss by this fraction of the current loss
+    min_fold_share: float = 0.8  # ... and helps in at least this share of the folds
+    confound_r2: float = 0.9  # a rival whose columns reproduce the winner's fitted term this well ...
+    t_separate: float = 3.0  # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
+    separate_bootstrap: int = 100
+    max_effects: int = 6
+    bootstrap: int = 200
+    seed: int = 0
+
+
+@dataclass
+class Selection:
+    named: list[str]
+    confounded: dict[str, list[str]]
+    steps: list[dict] = field(default_factory=list)
+    loss_nominal: float = float("nan")
+    loss_final: float = float("nan")
+
+
+class CrossValidator:
+    def __init__(self, stats: BlockStats, folds: int):
+        B = len(stats.s)
+        self.stats = stats
+        self.fold_of = np.minimum((np.arange(B) * folds) // max(B, 1), folds - 1)
+        self.folds = folds
+        # training blocks for fold f: not in f and not adjacent to it (filter smoothing correlates neighbours)
+        self.train = []
+        for f in range(folds):
+            val = self.fold_of == f
+            near = val | np.roll(val, 1) | np.roll(val, -1)
+            self.train.append(np.flatnonzero(~near))
+
+    def losses(self, effects) -> np.ndarray:
+        """Validation loss per fold, and its weight, for a set of effects."""
+        idx = self.stats.cols.index(effects)
+        out = np.zeros(self.folds)
+        for f in range(self.folds):
+            G, h, _, _ = self.stats.subset(self.train[f])
+            theta = solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *self.stats.bounds(idx))
+            Gv, hv, sv, nv = self.stats.subset(np.flatnonzero(self.fold_of == f))
+            out[f] = loss(Gv[np.ix_(idx, idx)], hv[idx], sv, nv, theta)
+        return out
+
+    def weights(self) -> np.ndarray:
+        return np.array([self.stats.n[self.fold_of == f].sum() for f in range(self.folds)])
+
+
+def _r2(stats: BlockStats, winner: list[str], rival: str, base: list[str]) -> float:
+    """How much of the winner's fitted term (given ``base``) the rival's columns reproduce."""
+    G, h, _, _ = stats.subset(np.arange(len(stats.s)))
+    cols = stats.cols
+    wi = cols.index(base + winner)
+    theta = solve(G[np.ix_(wi, wi)], h[wi])
+    t = np.zeros(cols.size)
+    t[wi] = theta
+    t[cols.index(base)] = 0.0  # the winner's own contribution
+    ri = cols.index([rival])
+    Grr = G[np.ix_(ri, ri)]
+    beta = solve(Grr, G[ri] @ t)
+    total = t @ G @ t
+    if total <= 0:
+        return 0.0
+    resid = total - 2 * beta @ (G[ri] @ t) + beta @ Grr @ beta
+    return float(1 - resid / total)
+
+
+def _separate(stats: BlockStats, base: list[str], winner: str, rival: str, cfg: SelectionConfig) -> str:
+    """Can the data tell ``winner`` from a collinear ``rival``?  Fit both jointly, block-bootstrap.
+
+    'winner' / 'rival': only that one's parameters are significant (|t| >= t_separate);
+    'both': both are (both present); 'confounded': neither is on its own.
+    """
+    effects = base + [winner, rival]
+    theta = fit(stats, effects)
+    boot = bootstrap(stats, effects, cfg.separate_bootstrap, cfg.seed)
+    se = boot.std(axis=0) + 1e-300
+    cols = Columns.of(effects)
+    t = {e: float(np.max(np.abs(theta[cols.slices[e]] / se[cols.slices[e]]))) for e in (winner, rival)}
+    w, r = t[winner] >= cfg.t_separate, t[rival] >= cfg.t_separate
+    if w and r:
+        return "both"
+    if w:
+        return "winner"
+    if r:
+        return "rival"
+    return "confounded"
+
+
+def simplicity(name: str) -> tuple:
+    """Order for naming one of a confounded group: fewer parameters first, then catalog order."""
+    return len(CATALOG[name].params), list(CATALOG).index(name)
+
+
+def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=()) -> Selection:
+    cv = CrossValidator(stats, cfg.folds)
+    wts = cv.weights()
+    current: list[str] = []
+    cur = cv.losses(current)
+    sel = Selection([], {}, loss_nominal=float(cur @ wts / wts.sum()))
+    pool = [e for e in stats.cols.effects if e not in must_not_name]
+    while pool and len(current) < cfg.max_effects:
+        L = float(cur @ wts / wts.sum())
+        trial = {c: cv.losses(current + [c]) for c in pool}
+        gain = {c: L - float(v @ wts / wts.sum()) for c, v in trial.items()}
+        best = max(gain, key=gain.get)
+        share = float(np.mean(trial[best] < cur))
+        step = {"candidate": best, "gain": gain[best] / L, "fold_share": share, "loss": L,
+                "gains": {c: g / L for c, g in sorted(gain.items(), key=lambda kv: -kv[1])}}
+        if gain[best] < cfg.min_gain * L or share < cfg.min_fold_share:
+            step["accepted"] = False
+            sel.steps.append(step)
+            break
+        rivals = [c for c in pool if c != best and _r2(stats, [best], c, current) >= cfg.confound_r2]
+        # parsimony: among collinear candidates, the simplest one explaining about as much
+        near = [c for c in [best] + rivals if gain[best] - gain[c] < cfg.min_gain * L]
+        chosen = min(near, key=simplicity)
+        confounded = []
+        for c in [best] + rivals:
+            if c == chosen:
+                continue
+            if _r2(stats, [chosen], c, current) >= 1 - 1e-6:  # c contains chosen (thrust_gain ⊂ motor_imbalance)
+                confounded.append(c)
+                continue
+            verdict = _separate(stats, current, chosen, c, cfg)
+            if verdict == "rival":
+                confounded.append(chosen)
+                chosen = c
+            elif verdict == "confounded":
+                confounded.append(c)
+        group = [chosen] + confounded
+        step.update(accepted=True, named=chosen, confounded=confounded)
+        sel.steps.append(step)
+        current.append(chosen)
+        sel.confounded[chosen] = confounded
+        pool = [c for c in pool if c not in group]
+        cur = cv.losses(current)
+    # backward pass: drop what later effects made redundant
+    changed = True
+    while changed and len(current) > 1:
+        changed = False
+        L = float(cv.losses(current) @ wts / wts.sum())
+        for e in list(current):
+            rest = [x for x in current if x != e]
+            Lr = float(cv.losses(rest) @ wts / wts.sum())
+            if Lr - L < cfg.min_gain * Lr:
+                current = rest
+                sel.steps.append({"dropped": e, "loss_without": Lr, "loss_with": L})
+                sel.confounded.pop(e, None)
+                changed = True
+                break
+    sel.named = current
+    sel.loss_final = float(cv.losses(current) @ wts / wts.sum())
+    return sel
+
+
+def fit(stats: BlockStats, effects: list[str], blocks=None) -> np.ndarray:
+    blocks = np.arange(len(stats.s)) if blocks is None else blocks
+    G, h, _, _ = stats.subset(blocks)
+    idx = stats.cols.index(effects)
+    return solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *stats.bounds(idx))
+
+
+def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int) -> np.ndarray:
+    """Block-bootstrap replicates of the parameter vector (n, p_effects)."""
+    rng = np.random.default_rng(seed)
+    B = len(stats.s)
+    idx = stats.cols.index(effects)
+    Gs = stats.G[:, idx][:, :, idx]
+    hs = stats.h[:, idx]
+    out = np.empty((n, idx.size))
+    for i in range(n):
+        pick = rng.integers(0, B, B)
+        counts = np.bincount(pick, minlength=B).astype(float)
+        out[i] = solve(np.tensordot(counts, Gs, 1), counts @ hs, 1e-9, *stats.bounds(idx))
+    return out

@@ -1,0 +1,65 @@
+# Filter: every ingested flight -> state table + NIS report (one MLflow run each), a NIS summary
+# over all flights, and thesis-style figures (Figs. 4.2-4.8) for one chosen flight.
+# The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`.
+
+FILTER = config.get("filter", {})
+FIGURE_SET, FIGURE_FLIGHT = FILTER.get("figure_flight", "brushless/eckart00").split("/")
+FILTER_FIGURES = ["position", "velocity", "acceleration", "quaternion", "angular_velocity",
+                  "angular_acceleration", "rotors"]
+
+
+rule filter:
+    input:
+        flight=rules.ingest.output[0],
+        vehicle=lambda wc: vehicle_file(wc.set),
+    output:
+        states="results/filter/{set}/{flight}.parquet",
+        nis="results/filter/{set}/{flight}.nis.json",
+    log:
+        "results/logs/filter/{set}/{flight}.log",
+    benchmark:
+        "results/benchmarks/filter/{set}/{flight}.tsv"
+    params:
+        overrides=list(FILTER.get("overrides", [])),
+        name=lambda wc: f"{wc.set}/{wc.flight}",
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/filter.py"
+
+
+rule filter_summary:
+    input:
+        nis=[p for s in SETS for p in flights_of(s, rules.filter.output.nis)],
+    output:
+        table="results/filter/summary.csv",
+        markdown="results/filter/summary.md",
+    log:
+        "results/logs/filter/summary.log",
+    benchmark:
+        "results/benchmarks/filter/summary.tsv"
+    params:
+        names=[f"{s}/{f}" for s in SETS for f in SETS[s]["flights"]],
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/filter_summary.py"
+
+
+rule filter_figures:
+    input:
+        flight=expand(rules.ingest.output[0], set=FIGURE_SET, flight=FIGURE_FLIGHT),
+        states=expand(rules.filter.output.states, set=FIGURE_SET, flight=FIGURE_FLIGHT),
+    output:
+        [report(f"results/figures/filter_{q}.png", caption="../report/filter_figures.rst", category="Filter")
+         for q in FILTER_FIGURES],
+    log:
+        "results/logs/filter/figures.log",
+    benchmark:
+        "results/benchmarks/filter/figures.tsv"
+    params:
+        title=f"{FIGURE_SET}/{FIGURE_FLIGHT}",
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/filter_figures.py"

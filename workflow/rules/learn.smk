@@ -1,0 +1,77 @@
+# Learning the residual (thesis Chapters 3-4): filtered flights -> learning table -> named Hydra sweeps
+# (MLflow parent + child runs) -> the thesis's Tables 3.1, 3.2, 4.2, 4.3 with our numbers.
+
+LEARN_SET = next(iter(SETS))  # the first configured set (brushless by default)
+LEARN_SWEEPS = ["table_4_2", "table_4_3", "gpr_kernels"]
+LEARN_TABLES = ["table_3_1", "table_3_2", "table_4_2", "table_4_3", "gpr_kernels"]
+
+
+rule learn_dataset:
+    input:
+        states=lambda wc: flights_of(wc.set, rules.filter.output.states),
+        vehicle=lambda wc: vehicle_file(wc.set),
+    output:
+        "results/learn/{set}/dataset.parquet",
+    log:
+        "results/logs/learn/{set}/dataset.log",
+    benchmark:
+        "results/benchmarks/learn/{set}/dataset.tsv"
+    params:
+        flights=lambda wc: SETS[wc.set]["flights"],
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/learn_dataset.py"
+
+
+rule learn_sweep:
+    input:
+        dataset=f"results/learn/{LEARN_SET}/dataset.parquet",
+        sweep="conf/sweep/{sweep}.yaml",
+        configs=["conf/split/by_flight.yaml", "conf/model/ann.yaml", "conf/model/gpr.yaml"],
+    output:
+        "results/learn/{sweep}/runs.csv",
+    log:
+        "results/logs/learn/{sweep}.log",
+    benchmark:
+        "results/benchmarks/learn/{sweep}.tsv"
+    threads: 2
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/learn_sweep.py"
+
+
+rule learn_tables:
+    input:
+        expand(rules.learn_sweep.output[0], sweep=LEARN_SWEEPS),
+    output:
+        **{t: f"results/tables/{t}.csv" for t in LEARN_TABLES},
+        **{f"{t}_md": f"results/tables/{t}.md" for t in LEARN_TABLES},
+    log:
+        "results/logs/learn/tables.log",
+    benchmark:
+        "results/benchmarks/learn/tables.tsv"
+    params:
+        sweeps={s: f"results/learn/{s}" for s in LEARN_SWEEPS},
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/learn_tables.py"
+
+
+rule learn_best:
+    input:
+        force=expand(rules.learn_sweep.output[0], sweep="table_4_2"),
+        torque=expand(rules.learn_sweep.output[0], sweep="table_4_3"),
+    output:
+        force=directory("results/learn/best/f_a"),
+        torque=directory("results/learn/best/tau_a"),
+    log:
+        "results/logs/learn/best.log",
+    benchmark:
+        "results/benchmarks/learn/best.tsv"
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/learn_best.py"
