@@ -5,8 +5,9 @@
 include: "workflow/rules/common.smk"
 include: "workflow/rules/ingest.smk"
 include: "workflow/rules/filter.smk"
-include: "workflow/rules/simulate.smk"
 include: "workflow/rules/learn.smk"
+include: "workflow/rules/diagnose.smk"
+include: "workflow/rules/simulate.smk"
 
 
 rule all:
@@ -19,3 +20,4 @@ rule all:
         rules.stability.output,
         rules.learn_tables.output,
         rules.learn_best.output,
+        rules.diagnosis_summary.output,

@@ -1,4 +1,10 @@
-"""Write-then-rename so no reader ever sees a half-written output."""
+"""Write-then-rename so no reader ever sees a half-written output.
+
+Temporaries are hidden files beside the output whose names carry the writer's
+host, pid and start time (:func:`qr.procs.temp_prefix`): one left by a killed
+process is recognised as an orphan and removed by
+:func:`qr.procs.remove_orphan_temporaries` (the workflow does it at start).
+"""
 
 from __future__ import annotations
 
@@ -10,13 +16,15 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from .procs import temp_prefix
+
 
 @contextlib.contextmanager
 def atomic_path(dest: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``dest``; rename it onto ``dest`` only on success."""
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=suffix or dest.suffix or ".tmp",
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(dest.name), suffix=suffix or dest.suffix or ".tmp",
                                dir=dest.parent)
     os.close(fd)
     tmp_path = Path(tmp)
@@ -37,12 +45,12 @@ def atomic_dir(dest: str | Path) -> Iterator[Path]:
     """
     dest = Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.", dir=dest.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=temp_prefix(dest.name), dir=dest.parent))
     os.chmod(tmp, 0o777 & ~_umask())
     try:
         yield tmp
         if dest.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old.", dir=dest.parent))
+            old = Path(tempfile.mkdtemp(prefix=temp_prefix(f"{dest.name}.old"), dir=dest.parent))
             os.replace(dest, old / "x")
             os.replace(tmp, dest)
             shutil.rmtree(old, ignore_errors=True)

@@ -7,6 +7,14 @@ stage.  Every run is tagged with the git commit, a hash of its resolved
 config and a digest of its input data.  SQLite allows one writer at a time:
 writes are retried, and store creation is serialised with a file lock, so
 concurrent jobs neither lose nor corrupt records.
+
+Faults.  A run ends FINISHED, FAILED (an exception) or KILLED (SIGINT, or
+SIGTERM: while a run is open SIGTERM raises :class:`Terminated`, a
+``KeyboardInterrupt``, unless someone else handles SIGTERM; the final status is
+written with both signals held back).  SIGKILL cannot be caught: every run is
+tagged with its process (``qr.host``, ``qr.pid``, ``qr.pid_start``), and the
+first run a process opens marks runs left RUNNING by a process of this host
+that is gone as KILLED (:func:`reap_stale`, tag ``qr.killed``).
 """
 
 from __future__ import annotations
@@ -18,12 +26,15 @@ import json
 import logging
 import os
 import random
+import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 from typing import Iterable, Iterator
 
 _RETRIES = 12
+_reaped = False
 
 
 def results_dir() -> Path:
@@ -87,12 +98,18 @@ def config_hash(config) -> str:
 
 
 def data_digest(paths: Iterable[str | Path]) -> str:
+    """Digest of the inputs' names and bytes; a directory counts as its files (relative names, sorted)."""
     h = hashlib.sha256()
     for p in sorted(str(p) for p in paths):
-        h.update(Path(p).name.encode())
-        with open(p, "rb") as f:
-            for chunk in iter(lambda: f.read(1 << 20), b""):
-                h.update(chunk)
+        p = Path(p)
+        h.update(p.name.encode())
+        files = sorted(f for f in p.rglob("*") if f.is_file()) if p.is_dir() else [p]
+        for fp in files:
+            if fp != p:
+                h.update(str(fp.relative_to(p)).encode())
+            with open(fp, "rb") as f:
+                for chunk in iter(lambda: f.read(1 << 20), b""):
+                    h.update(chunk)
     return h.hexdigest()[:16]
 
 
@@ -172,43 +189,140 @@ def _finite(v) -> bool:
         return False
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived while a tracked run was open (the run ends KILLED, then this propagates)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(f"terminated by signal {signum}")
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """While a run is open, SIGTERM raises :class:`Terminated` in the main thread instead of ending
+    the process on the spot, so the run's status can be written.  Only the default action is
+    replaced: a handler installed by someone else (submitit's, say) is left alone."""
+    installed = False
+    if threading.current_thread() is threading.main_thread():
+        try:
+            if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+                signal.signal(signal.SIGTERM, _raise_terminated)
+                installed = True
+        except (ValueError, OSError):
+            pass
+    try:
+        yield
+    finally:
+        if installed and signal.getsignal(signal.SIGTERM) is _raise_terminated:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM wait (and are delivered afterwards) while a run's final status is written."""
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    except (AttributeError, ValueError, OSError):
+        old = None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def reap_stale(client=None) -> list[str]:
+    """Mark runs left RUNNING by a process of this host that is gone (SIGKILL, crash) as KILLED.
+
+    A run's process is its tags ``qr.host``, ``qr.pid``, ``qr.pid_start``; it is gone when no
+    process with that pid and start time runs (or it is a zombie).  Runs of other hosts, and runs
+    without these tags, are left alone.  The marked runs get the tag ``qr.killed`` saying who
+    noticed.  Returns their ids.  Called once per process by :func:`run`.
+    """
+    from mlflow.entities import ViewType
+
+    from . import procs
+
+    client = client or _client()
+    exps = [e.experiment_id for e in _retry(client.search_experiments, view_type=ViewType.ALL)]
+    if not exps:
+        return []
+    filt = f"attributes.status = 'RUNNING' and tags.`qr.host` = '{procs.host()}'"
+    stale, token = [], None
+    while True:
+        page = _retry(client.search_runs, exps, filt, ViewType.ALL, 1000, None, token)
+        for r in page:
+            t = r.data.tags
+            if "qr.pid" in t and not procs.alive(t["qr.pid"], t.get("qr.pid_start"), t.get("qr.host")):
+                stale.append(r)
+        token = page.token
+        if not token:
+            break
+    me = procs.identity()
+    for r in stale:
+        t = r.data.tags
+        note = (f"process {t['qr.pid']} on {t['qr.host']} ended without closing the run (SIGKILL or crash); "
+                f"marked KILLED by process {me['pid']} at {time.strftime('%Y-%m-%dT%H:%M:%S%z')}")
+        Run(client, r.info.run_id).tags({"qr.killed": note})
+        _retry(client.set_terminated, r.info.run_id, "KILLED")
+    return [r.info.run_id for r in stale]
+
+
+def _reap_once(client) -> None:
+    global _reaped
+    if _reaped:
+        return
+    _reaped = True
+    try:
+        reap_stale(client)
+    except Exception as e:  # never let the clean-up of someone else's run fail this one
+        logging.getLogger("qr.tracking").warning("could not check for stale runs: %s", e)
+
+
 @contextlib.contextmanager
 def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str | Path] = (),
         parent: Run | None = None, tags: dict | None = None) -> Iterator[Run]:
     """Open an MLflow run in experiment ``qr-<stage>`` with provenance tags.
 
-    Ends FINISHED on success, KILLED on interrupt, FAILED on any other error.
+    Ends FINISHED on success, KILLED on interrupt (SIGINT, SIGTERM), FAILED on any other error.
     ``QR_TRACKING=off`` disables tracking (the run object then records nothing).
     """
     if os.environ.get("QR_TRACKING", "on").lower() in ("off", "0", "false"):
         yield _NullRun()
         return
+    from . import procs
+
     exp = experiment_id(stage)
     client = _client()
+    _reap_once(client)
     inputs = list(inputs)
+    me = procs.identity()
     all_tags = {
         "qr.stage": stage,
         "mlflow.source.git.commit": git_commit(),
         "qr.config_hash": config_hash(config or {}),
         "qr.data_digest": data_digest(inputs) if inputs else "none",
         "qr.inputs": ",".join(Path(p).name for p in inputs)[:5000],
+        "qr.host": me["host"], "qr.pid": me["pid"], "qr.pid_start": me["start"],
     }
     if parent is not None and not isinstance(parent, _NullRun):
         all_tags["mlflow.parentRunId"] = parent.id
     all_tags.update(tags or {})
-    r = _retry(client.create_run, exp, run_name=name, tags=all_tags)
-    handle = Run(client, r.info.run_id)
-    if config:
-        handle.params(config)
-    status = "FAILED"
-    try:
-        yield handle
-        status = "FINISHED"
-    except KeyboardInterrupt:
-        status = "KILLED"
-        raise
-    finally:
-        _retry(client.set_terminated, handle.id, status)
+    with _sigterm_raises():
+        r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
+        handle = Run(client, r.info.run_id)
+        status = "FAILED"
+        try:
+            if config:
+                handle.params(config)
+            yield handle
+            status = "FINISHED"
+        except KeyboardInterrupt:  # SIGINT, or SIGTERM (Terminated)
+            status = "KILLED"
+            raise
+        finally:
+            with _signals_held():
+                _retry(client.set_terminated, handle.id, status)
 
 
 class _NullRun(Run):

@@ -11,9 +11,20 @@ configfile: "conf/workflow.yaml"
 
 validate(config, "../schemas/config.schema.yaml")
 
+# After a killed run (SIGKILL, power loss): drop Snakemake's stale directory lock and orphaned
+# write-then-rename temporaries, each only if the process that left it is gone (qr.procs).
+# profiles/default sets rerun-incomplete, so a plain `snakemake --cores 2` then just continues.
+from qr.procs import remove_orphan_temporaries, snakemake_guard
+
+snakemake_guard(".snakemake")
+remove_orphan_temporaries("results")
+
 DATA = yaml.safe_load(open(config["data"]))
 DATA_ROOT = Path(os.environ.get("QR_DATA", DATA["root"]))
-SETS = {name: DATA["sets"][name] for name in config["sets"]}
+SETS = {name: dict(DATA["sets"][name]) for name in config["sets"]}
+if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the first N flights of each set
+    for _s in SETS.values():
+        _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
 
 
 def raw_log(wildcards):
@@ -27,3 +38,32 @@ def vehicle_file(set_name):
 
 def flights_of(set_name, pattern):
     return [pattern.format(set=set_name, flight=f) for f in SETS[set_name]["flights"]]
+
+
+DIAG = config.get("diagnose", {})
+DIAG_FIRST = DIAG.get("first", "brushless")
+DIAG_CARRY = DIAG.get("carry_to", "payload")
+
+
+def diagnosis_vehicle(wildcards):
+    """The carry-over set is diagnosed with the first set's extended vehicle (rule carry_over)."""
+    if wildcards.set == DIAG_CARRY and DIAG_FIRST in SETS:
+        return f"results/diagnosis/{DIAG_CARRY}/vehicle.yaml"
+    return vehicle_file(wildcards.set)
+
+
+LEARNED_VEHICLE = SETS[DIAG_FIRST]["vehicle"] if DIAG_FIRST in SETS else "crazyflie21_brushless"
+
+
+def stage_sources(wildcards, input):
+    """Hydra overrides that switch on the learned-model and extended-vehicle sources."""
+    extended = f"{input.diagnosis}/extended_vehicle.yaml"
+    return [
+        "sim.sources.learned.enabled=true",
+        f"sim.sources.learned.vehicle={LEARNED_VEHICLE}",
+        f"sim.sources.learned.plant.force.path={input.learned}",
+        f"sim.sources.learned.estimates.learned.path={input.learned}",
+        "sim.sources.extended_vehicle.enabled=true",
+        f"sim.sources.extended_vehicle.vehicle={extended}",
+        f"sim.sources.extended_vehicle.estimates.extended.path={extended}",
+    ]

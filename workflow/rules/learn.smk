@@ -4,6 +4,9 @@
 LEARN_SET = next(iter(SETS))  # the first configured set (brushless by default)
 LEARN_SWEEPS = ["table_4_2", "table_4_3", "gpr_kernels"]
 LEARN_TABLES = ["table_3_1", "table_3_2", "table_4_2", "table_4_3", "gpr_kernels"]
+# Extra Hydra overrides (conf/workflow.yaml, key `learn`): `overrides` for every sweep, `sweeps.<name>` for one
+# (a reduced run picks rows with e.g. `row=4,14`; see conf/workflow_ci.yaml).
+LEARN = config.get("learn", {})
 
 
 rule learn_dataset:
@@ -35,7 +38,9 @@ rule learn_sweep:
         "results/logs/learn/{sweep}.log",
     benchmark:
         "results/benchmarks/learn/{sweep}.tsv"
-    threads: 2
+    threads: LEARN.get("threads", 2)  # joblib processes of the sweep; 1 runs its jobs in the sweep's own process
+    params:
+        overrides=lambda wc: [*LEARN.get("overrides", []), *LEARN.get("sweeps", {}).get(wc.sweep, [])],
     conda:
         "../envs/qr.yaml"
     script:

@@ -1,22 +1,19 @@
 # Simulation study (thesis Chapter 5): closed-loop tracking without / with the disturbance model /
 # with the oracle, and the stability analysis of a_b-input models (eq. 5.15).  Config: conf/sim/.
 #
-# Sources that need other stages are off in conf/sim/thesis.yaml until wired here:
-#   learned model (issue 4):   add its directory to `input` and to `overrides`, e.g.
-#       "sim.sources.learned.enabled=true", "sim.sources.learned.vehicle=crazyflie21_brushless",
-#       "sim.sources.learned.plant.force.path=<dir>", "sim.sources.learned.estimates.learned.path=<dir>",
-#       (stability) "sim.stability.models.learned.enabled=true", "sim.stability.models.learned.path=<dir>"
-#   extended vehicle (issue 5): "sim.sources.extended_vehicle.enabled=true",
-#       "sim.sources.extended_vehicle.vehicle=<extended_vehicle.yaml>",
-#       "sim.sources.extended_vehicle.estimates.extended.path=<extended_vehicle.yaml>"
+# Besides the thesis's sources, the tracking study flies the two the other stages produce: the
+# best non-leaking learned force model (rule learn_best; the Crazyflie it was trained on) and the
+# extended vehicle of the no-payload diagnosis (rule diagnose_set), both switched on here.
 SIM_CONFIG = "thesis"
-SIM_OVERRIDES = []
+SIM_OVERRIDES = list(config.get("simulate", {}).get("overrides", []))  # conf/workflow.yaml, key `simulate`
 
 
 rule simulate:
     input:
         sim=f"conf/sim/{SIM_CONFIG}.yaml",
         vehicle="conf/vehicle/asctec_hummingbird.yaml",
+        learned=rules.learn_best.output.force,
+        diagnosis=expand(rules.diagnose_set.output[0], set=DIAG_FIRST)[0],
     output:
         table="results/simulation/tracking.csv",
         markdown="results/simulation/tracking.md",
@@ -29,7 +26,7 @@ rule simulate:
     benchmark:
         "results/benchmarks/simulation/simulate.tsv"
     params:
-        overrides=[f"sim={SIM_CONFIG}", *SIM_OVERRIDES],
+        overrides=lambda wc, input: [f"sim={SIM_CONFIG}", *SIM_OVERRIDES, *stage_sources(wc, input)],
     conda:
         "../envs/qr.yaml"
     script:

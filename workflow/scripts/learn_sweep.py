@@ -1,5 +1,6 @@
 """Snakemake rule `learn_sweep`: one named sweep as a Hydra multirun on the rule's threads (joblib)."""
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -7,7 +8,21 @@ from pathlib import Path
 out = Path(snakemake.output[0]).parent
 cmd = [sys.executable, "-m", "qr.train", "-m", f"sweep={snakemake.wildcards.sweep}",
        f"dataset={snakemake.input.dataset}", f"out={out}", f"hydra.sweep.dir={out / 'hydra'}",
-       "hydra/launcher=joblib2", f"hydra.launcher.n_jobs={snakemake.threads}"]
+       "hydra/launcher=joblib2", f"hydra.launcher.n_jobs={snakemake.threads}", *snakemake.params.overrides]
 env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 with open(snakemake.log[0], "w") as log:
-    subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, check=True)
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+    # SIGTERM (a cancelled cluster job) goes on to the sweep, and on Ctrl-C (which the sweep, in the
+    # same process group, receives too) we wait: either way the sweep closes its MLflow runs as
+    # KILLED / FAILED before this job ends, instead of being left behind.
+    signal.signal(signal.SIGTERM, lambda signum, frame: proc.send_signal(signum))
+    try:
+        rc = proc.wait()
+    except KeyboardInterrupt:
+        try:
+            proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+        raise
+    if rc != 0:
+        raise subprocess.CalledProcessError(rc, cmd)

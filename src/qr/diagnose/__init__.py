@@ -29,8 +29,25 @@ def _compose(overrides):
     return cfg
 
 
+def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
+    """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
+
+    ``report``: the filter stage's report of this flight (its tuned noise values are
+    reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
+    """
+    from ..estimation import estimate
+    from .crossfit import halves, matched_settings
+    from .matched import add_matched_rotor_signals
+
+    if report is None:
+        _, report = estimate(flight, vehicle, filter_cfg)
+    matched = matched_settings(filter_cfg, report)
+    st, _ = estimate(flight, vehicle, matched)
+    return add_matched_rotor_signals(st, flight, matched), halves(flight, vehicle, matched), report
+
+
 def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None, log=None,
-                  return_result: bool = False):
+                  return_result: bool = False, reports: list | None = None, figures: bool = True):
     from ..atomic import atomic_dir, write_json
     from ..config import to_dict
     from ..flight import read_flight
@@ -47,22 +64,20 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     if out.exists() and not out.is_dir():
         raise QrInputError(out, "output path exists and is not a directory", "give a directory for --out")
     measured = [read_flight(f, vehicle) for f in flights]
+    # the training part of a lone flight must hold a block per cross-validation fold
+    blocks = dcfg.selection.folds if len(flights) == 1 else 1
+    need = 2 * dcfg.trim_s + (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
     for f, m in zip(flights, measured):
-        if m["t"].iloc[-1] - m["t"].iloc[0] < 4 * dcfg.block_s + dcfg.gap_s:
-            raise QrInputError(f, f"flight lasts {m['t'].iloc[-1] - m['t'].iloc[0]:.1f} s, too short to hold out "
-                                  "a test part", "give a longer flight (30 s or more) or several flights")
+        span = m["t"].iloc[-1] - m["t"].iloc[0]
+        if span < need:
+            raise QrInputError(f, f"flight lasts {span:.1f} s, too short to hold out a test part (needs {need:.1f} s)",
+                               "give a longer flight (30 s or more), several flights, or a smaller diagnose.block_s")
     states, pairs = [], []
-    from ..estimation import estimate
-    from .crossfit import halves, matched_settings
-    from .matched import add_matched_rotor_signals
-
     for i, m in enumerate(measured):
         say(f"filtering {Path(flights[i]).name} ({len(m)} samples, filter={cfg.filter.get('name', '?')})")
-        st, report = estimate(m, vehicle, to_dict(cfg.filter))
-        matched = matched_settings(to_dict(cfg.filter), report)
-        st, _ = estimate(m, vehicle, matched)
-        states.append(add_matched_rotor_signals(st, m, matched))
-        pairs.append(halves(m, vehicle, matched))
+        st, pair, _ = prepare_flight(m, vehicle, to_dict(cfg.filter), reports[i] if reports else None)
+        states.append(st)
+        pairs.append(pair)
     say("identifying effects")
     res = diagnose(states, measured, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
     from .remainder import remainder
@@ -73,7 +88,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     doc["filter"] = to_dict(cfg.filter)
     ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
     with atomic_dir(out) as tmp:
-        figs = make_figures(tmp, res, vehicle)
+        figs = make_figures(tmp, res, vehicle) if figures else {}
         write_report(tmp, doc, res, figs)
         write_json(tmp / "diagnosis.json", doc)
         save_vehicle(ext, tmp / "extended_vehicle.yaml",

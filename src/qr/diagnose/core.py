@@ -110,13 +110,16 @@ def weights(sd: np.ndarray) -> np.ndarray:
     return 1.0 / np.maximum(sd, floor) ** 2
 
 
-def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = None) -> BlockStats:
+def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = None, rows=None) -> BlockStats:
+    """Per-block normal equations; ``rows`` restricts the loss to some of the six axes."""
     y = prep.y if y is None else y
     idx = np.flatnonzero(prep.train)
     n_blocks = int(prep.block[idx].max()) + 1 if idx.size else 0
     p = cols.size
     G, h, s, n = np.zeros((n_blocks, p, p)), np.zeros((n_blocks, p)), np.zeros(n_blocks), np.zeros(n_blocks)
     w = weights(prep.sd)
+    if rows is not None:
+        w = w * np.isin(np.arange(6), rows)
     lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
     ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
     for start in range(0, idx.size, CHUNK):
@@ -218,8 +221,9 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     cols = Columns.of(candidates)
     step("normal equations")
     stats = block_stats(fitprep, vehicle, cols)
+    row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]), block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
     step("selection")
-    sel = forward_select(stats, cfg.selection)
+    sel = forward_select(stats, cfg.selection, row_stats=row_stats)
     named = sel.named
     theta = fit(stats, named) if named else np.zeros(0)
     step("bootstrap")
@@ -262,7 +266,8 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         "nominal_loss": base_loss,
         "extended_loss": float(np.nanmean(w_test * ext_resid**2)),
         "effects": effects,
-        "selection": {"steps": sel.steps, "cv_loss_nominal": sel.loss_nominal, "cv_loss_final": sel.loss_final},
+        "selection": {"steps": sel.steps, "cv_loss_nominal": sel.loss_nominal, "cv_loss_final": sel.loss_final,
+                      "rejected": sel.rejected},
         "bootstrap": boot,
         "prep": prep,
         "fitprep": fitprep,

@@ -51,7 +51,8 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
         "remainder": res.get("remainder", {}),
         "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
                       "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
-                      "steps": [_clean(s) for s in res["selection"]["steps"]]},
+                      "steps": [_clean(s) for s in res["selection"]["steps"]],
+                      "rejected": res["selection"].get("rejected", {})},
         "verdict": verdict(res),
         "config": cfg_dict,
     }
@@ -129,6 +130,11 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             dec += f" (confounded: {', '.join(s['confounded'])})"
         L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {dec} |")
     L.append("")
+    if doc["selection"].get("rejected"):
+        L.append("Candidates rejected as unphysical on this data:\n")
+        for name, why in doc["selection"]["rejected"].items():
+            L.append(f"- `{name}`: {why}.")
+        L.append("")
     rem = doc.get("remainder") or {}
     if rem:
         L.append("## Beyond the catalog\n")

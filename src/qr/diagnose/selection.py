@@ -140,6 +140,8 @@ class SelectionConfig:
     confound_r2: float = 0.9  # a rival whose columns reproduce the winner's fitted term this well ...
     t_separate: float = 3.0  # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
     separate_bootstrap: int = 100
+    consistency_t: float = 4.0  # force-only and torque-only fits of one effect may differ by this many s.e. ...
+    consistency_rel: float = 0.3  # ... or by this fraction, before the effect is rejected as inconsistent
     max_effects: int = 6
     bootstrap: int = 200
     seed: int = 0
@@ -150,6 +152,7 @@ class Selection:
     named: list[str]
     confounded: dict[str, list[str]]
     steps: list[dict] = field(default_factory=list)
+    rejected: dict = field(default_factory=dict)
     loss_nominal: float = float("nan")
     loss_final: float = float("nan")
 
@@ -228,15 +231,70 @@ def simplicity(name: str) -> tuple:
     return len(CATALOG[name].params), list(CATALOG).index(name)
 
 
-def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=()) -> Selection:
+def _at_bound(stats: BlockStats, effects: list[str], effect: str) -> bool:
+    """Does the fit of ``effects`` put a parameter of ``effect`` on its plausibility bound?"""
+    if stats.lb is None:
+        return False
+    theta = fit(stats, effects)
+    cols = Columns.of(effects)
+    sl = cols.slices[effect]
+    lb, ub = stats.bounds(stats.cols.index(effects))
+    th, lo, hi = theta[sl], lb[sl], ub[sl]
+    tol = 1e-6 * np.maximum(1.0, np.abs(np.where(np.isfinite(lo), lo, 0)) + np.abs(np.where(np.isfinite(hi), hi, 0)))
+    return bool(np.any(th <= lo + tol) or np.any(th >= hi - tol))
+
+
+def _inconsistent(row_stats, base: list[str], effect: str, cfg: SelectionConfig) -> str | None:
+    """An effect acting on force AND torque must be told the same story by both.
+
+    Fits its parameters (with ``base``) on the force rows alone and on the torque
+    rows alone; a difference beyond ``consistency_t`` standard errors (block
+    bootstrap) and ``consistency_rel`` of the larger value means the physics of
+    this effect does not explain the data, whatever the joint fit gains.
+    """
+    from ..effects import CATALOG
+
+    axes = set(CATALOG[effect].axes)
+    if row_stats is None or not (axes & {0, 1, 2}) or not (axes & {3, 4, 5}):
+        return None
+    effects = base + [effect]
+    est = []
+    for st in row_stats:
+        th = fit(st, effects)
+        se = bootstrap(st, effects, cfg.separate_bootstrap, cfg.seed).std(axis=0)
+        sl = Columns.of(effects).slices[effect]
+        est.append((th[sl], se[sl]))
+    (tf, sf), (tt, stt) = est
+    diff = np.abs(tf - tt)
+    bad = (diff > cfg.consistency_t * np.sqrt(sf**2 + stt**2)) & (diff > cfg.consistency_rel * np.maximum(
+        np.abs(tf), np.abs(tt)))
+    if np.any(bad):
+        return (f"force rows give {np.array2string(tf, precision=4)}, torque rows "
+                f"{np.array2string(tt, precision=4)}")
+    return None
+
+
+def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), row_stats=None) -> Selection:
+    """``row_stats``: (force-rows-only, torque-rows-only) statistics for the consistency check."""
     cv = CrossValidator(stats, cfg.folds)
     wts = cv.weights()
     current: list[str] = []
     cur = cv.losses(current)
     sel = Selection([], {}, loss_nominal=float(cur @ wts / wts.sum()))
     pool = [e for e in stats.cols.effects if e not in must_not_name]
+    sel.rejected = {}
     while pool and len(current) < cfg.max_effects:
         L = float(cur @ wts / wts.sum())
+        # physically implausible or self-contradicting candidates are never named
+        for c in list(pool):
+            why = ("a parameter sits on its plausibility bound"
+                   if any(_at_bound(stats, current + [c], e) for e in current + [c])
+                   else _inconsistent(row_stats, current, c, cfg))
+            if why:
+                sel.rejected[c] = why
+                pool.remove(c)
+        if not pool:
+            break
         trial = {c: cv.losses(current + [c]) for c in pool}
         gain = {c: L - float(v @ wts / wts.sum()) for c, v in trial.items()}
         best = max(gain, key=gain.get)

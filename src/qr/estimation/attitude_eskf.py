@@ -18,9 +18,10 @@ Corrections to the thesis, each said where it happens:
   same Φ (``φ = ω dt + α dt²/2``, ``ω += α dt + α̇ dt²/2``), so Φ is the
   Jacobian of the propagation it is paired with.
 
-Everything else is as printed: Q (4.16a) on the world-frame α̈ with
-``Q_d = G Q Gᵀ dt²`` (4.20–4.21), R_ν (4.16b), H (4.26), the error (4.24) and
-the update (4.25–4.27) with filterpy's Joseph form of 4.27e.  With
+Added: a restart guard (:data:`RESET_DEG`) for when the filter loses the
+vehicle on measured data.  Everything else is as printed: Q (4.16a) on the
+world-frame α̈ with ``Q_d = G Q Gᵀ dt²`` (4.20–4.21), R_ν (4.16b), H (4.26),
+the error (4.24) and the update (4.25–4.27) with filterpy's Joseph form of 4.27e.  With
 ``discretisation: exact`` Φ is the full ``exp(F dt)`` (F is nilpotent:
 ``+ F³ dt³/6``) and ``Q_d`` the integrated white noise of intensity ``q``.
 """

@@ -1,0 +1,90 @@
+"""The measured-data diagnoses the workflow runs: per flight, per flight set, and the carry-over.
+
+An engineer's order (issue 5): diagnose the vehicle without payload first; carry
+its extended model over to the payload flights (with the payload frame's own
+mass); diagnose those; compare.  The filter stage's tuned noise values are
+reused (``.nis.json``), so nothing is tuned twice.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import yaml
+
+from ..atomic import atomic_dir
+from ..report.tables import write_table
+from ..vehicle import load_vehicle, save_vehicle
+from . import run_diagnosis
+
+
+def _reports(nis_files):
+    return [json.loads(Path(p).read_text()) for p in nis_files]
+
+
+def diagnose_set(flights, nis_files, vehicle, out, overrides=(), track=True) -> dict:
+    """One diagnosis of all ``flights`` together (canonical flights + their filter reports)."""
+    return run_diagnosis(flights, vehicle, out, overrides, track=track, reports=_reports(nis_files))
+
+
+def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=()) -> pd.DataFrame:
+    """A diagnosis per flight (no figures: short flights, many of them) and one table of them."""
+    rows = []
+    reports = _reports(nis_files)
+    with atomic_dir(out_dir) as tmp:
+        for f, rep in zip(flights, reports):
+            name = Path(f).stem
+            doc = run_diagnosis([f], vehicle, tmp / name, overrides, track=False, reports=[rep], figures=False,
+                                log=lambda m: None)
+            rows.append({
+                "flight": name,
+                "effects": ", ".join(e["name"] for e in doc["effects"]) or "-",
+                **{f"{e['name']}.{k}": v for e in doc["effects"] for k, v in e["parameters"].items()},
+                "nominal_fz_rmse": doc["nominal"]["force_rmse"][2],
+                "extended_fz_rmse": doc["extended"]["force_rmse"][2],
+                "noise_fz_rmse": doc["noise_floor"]["force_rmse"][2],
+            })
+    df = pd.DataFrame(rows)
+    write_table(df, table, title=f"Per-flight diagnoses ({Path(out_dir).parent.name})")
+    return df
+
+
+def carry_over(extended_vehicle, base_vehicle, out) -> None:
+    """The payload frame = the no-payload diagnosis's extended vehicle with the payload frame's own mass."""
+    ext = yaml.safe_load(Path(extended_vehicle).read_text())
+    base = load_vehicle(base_vehicle)
+    ext["mass"] = base.mass
+    ext["name"] = f"{base.name} (effects carried over from {ext.get('name', 'the no-payload diagnosis')})"
+    save_vehicle(load_vehicle_dict(ext), out,
+                 header=f"{base.name}: mass from {Path(base_vehicle).name}, effects from {extended_vehicle}")
+
+
+def load_vehicle_dict(raw: dict):
+    from ..vehicle import vehicle_from_dict
+
+    return vehicle_from_dict(raw)
+
+
+def summary(set_dirs: dict, table) -> pd.DataFrame:
+    """The set diagnoses side by side: named effects, RMSEs, replay."""
+    rows = []
+    for name, d in set_dirs.items():
+        doc = json.loads((Path(d) / "diagnosis.json").read_text())
+        eff = "; ".join(f"{e['name']}(" + ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()) + ")"
+                        for e in doc["effects"]) or "none"
+        rows.append({
+            "set": name, "flights": len(doc["flights"]), "samples": doc["samples"], "named": eff,
+            "nominal_force_rmse": " / ".join(f"{x:.4f}" for x in doc["nominal"]["force_rmse"]),
+            "extended_force_rmse": " / ".join(f"{x:.4f}" for x in doc["extended"]["force_rmse"]),
+            "noise_force_rmse": " / ".join(f"{x:.4f}" for x in doc["noise_floor"]["force_rmse"]),
+            "nominal_torque_rmse": " / ".join(f"{x:.2e}" for x in doc["nominal"]["torque_rmse"]),
+            "extended_torque_rmse": " / ".join(f"{x:.2e}" for x in doc["extended"]["torque_rmse"]),
+            "replay_nominal_m": doc["replay"]["nominal_position_rmse"],
+            "replay_extended_m": doc["replay"]["extended_position_rmse"],
+            "remainder": (doc.get("remainder") or {}).get("correlated_with") or "-",
+        })
+    df = pd.DataFrame(rows)
+    write_table(df, table, title="Diagnoses of the measured flight sets")
+    return df

@@ -1,0 +1,169 @@
+"""Who wrote this, and is that process still alive?  Clean-up after a killed run.
+
+A SIGKILL (or a machine that dies) runs no clean-up code, so what a killed
+process leaves behind is recognised later by the process that left it: its
+host name, pid and start time (``/proc/<pid>/stat``, so a reused pid does not
+pass for the dead process).  Three things are cleaned up this way, each only
+when its owner is certainly gone (same host, pid not running or a zombie):
+
+- MLflow runs left RUNNING: :func:`qr.tracking.reap_stale` marks them KILLED;
+- write-then-rename temporaries of :mod:`qr.atomic` (their names carry the
+  writer's identity): :func:`remove_orphan_temporaries`;
+- Snakemake's directory lock (``.snakemake/locks``), which Snakemake never
+  recognises as stale: :func:`snakemake_guard`, called when the workflow is
+  parsed, removes it when every Snakemake process that could hold it is gone.
+
+What another host left is never touched (its processes cannot be checked from
+here): ``snakemake --unlock`` for the lock, and
+``mlflow.MlflowClient().set_terminated(run_id, "KILLED")`` for a run, are the
+manual ways out for that case.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import re
+import shutil
+import socket
+import sys
+from pathlib import Path
+
+_HOST = None
+
+
+def host() -> str:
+    global _HOST
+    if _HOST is None:
+        # no dots or dashes: the name is one field of temporary and owner file names
+        _HOST = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+    return _HOST
+
+
+def start_time(pid: int) -> str | None:
+    """The process's start time (clock ticks since boot, ``/proc/<pid>/stat`` field 22); None if unknown."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) "
+    return fields[19] if len(fields) > 19 else None
+
+
+def _zombie(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2:].split()[0] in ("Z", "X")
+
+
+def identity(pid: int | None = None) -> dict:
+    """``{host, pid, start}`` of this process (or of ``pid`` on this host)."""
+    pid = os.getpid() if pid is None else int(pid)
+    return {"host": host(), "pid": pid, "start": start_time(pid) or ""}
+
+
+def alive(pid, start: str | None = None, on_host: str | None = None) -> bool:
+    """Whether the process is (possibly) still running.  Conservative: True unless certainly gone.
+
+    A process on another host, or one we may not signal, counts as alive.  A zombie
+    (killed, not yet reaped by its parent) counts as gone.
+    """
+    if on_host is not None and on_host != host():
+        return True
+    try:
+        pid = int(pid)
+    except (TypeError, ValueError):
+        return True
+    if pid <= 0:
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    if _zombie(pid):
+        return False
+    now = start_time(pid)
+    if start and now is not None and now != str(start):
+        return False  # the pid was reused by a younger process
+    return True
+
+
+# ---- write-then-rename temporaries ---------------------------------------------------------
+
+TEMP_TAG = "qrtmp"
+_TEMP_RE = re.compile(rf"^\..+\.{TEMP_TAG}-(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)-(?P<start>\d*)\.")
+
+
+def temp_prefix(name: str) -> str:
+    """Prefix of a temporary beside output ``name``: hidden, and naming its writer."""
+    me = identity()
+    return f".{name}.{TEMP_TAG}-{me['host']}-{me['pid']}-{me['start']}."
+
+
+def remove_orphan_temporaries(root) -> list[Path]:
+    """Remove temporaries under ``root`` whose writer (on this host) is gone; returns what was removed."""
+    removed = []
+    root = Path(root)
+    if not root.is_dir():
+        return removed
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in list(dirnames) + filenames:
+            m = _TEMP_RE.match(name)
+            if not m or m["host"] != host() or alive(m["pid"], m["start"]):
+                continue
+            p = Path(dirpath) / name
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+                if name in dirnames:
+                    dirnames.remove(name)
+            else:
+                p.unlink(missing_ok=True)
+            removed.append(p)
+    return removed
+
+
+# ---- Snakemake's directory lock --------------------------------------------------------------
+
+def snakemake_guard(snakemake_dir=".snakemake", log=sys.stderr) -> list[Path]:
+    """Drop a dead run's Snakemake lock, then register this process as a possible lock holder.
+
+    Snakemake locks the working directory (``.snakemake/locks/*.lock``) and removes the lock
+    when it exits, but not when it is killed with SIGKILL; the next run then refuses to start
+    ("Directory cannot be locked").  Every Snakemake process that parses the workflow leaves an
+    owner file ``.snakemake/qr-owners/<host>.<pid>.<start>`` (removed when it exits).  When lock
+    files exist and no owner is alive (same host, by pid and start time), the lock is stale and
+    removed.  An owner on another host keeps the lock (``snakemake --unlock`` then).
+    Returns the lock files removed.
+    """
+    base = Path(snakemake_dir)
+    owners = base / "qr-owners"
+    live = []
+    if owners.is_dir():
+        for f in owners.iterdir():
+            parts = f.name.split(".")
+            if len(parts) == 3 and parts[0] == host() and not alive(parts[1], parts[2]):
+                f.unlink(missing_ok=True)
+            else:
+                live.append(f.name)
+    removed = []
+    locks = base / "locks"
+    if not live and locks.is_dir():
+        removed = sorted(locks.glob("*.lock"))
+        for f in removed:
+            f.unlink(missing_ok=True)
+        if removed and log is not None:
+            print(f"qr: removed the Snakemake lock of a killed run ({len(removed)} lock file(s) in {locks}; "
+                  "no Snakemake process of it is alive)", file=log)
+    try:
+        owners.mkdir(parents=True, exist_ok=True)
+        me = identity()
+        mine = owners / f"{me['host']}.{me['pid']}.{me['start']}"
+        mine.touch()
+        atexit.register(lambda: mine.unlink(missing_ok=True))
+    except OSError:
+        pass
+    return removed

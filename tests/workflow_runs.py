@@ -1,0 +1,224 @@
+"""Whole-workflow runs on the reduced config (conf/workflow_ci.yaml) in scratch working directories.
+
+Shared by the fault, determinism, concurrency and cluster tests.  A run happens in its own
+directory with symlinks to the repository's conf/, workflow/, Snakefile and profiles/ (so
+profiles/default applies, as in the repository), with ``QR_RESULTS`` and the MLflow store inside
+it; /work/main/results is never touched.  Each full run is made once per test session
+(memoised here, so the test modules share them).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from conftest import DATA, ROOT
+
+SNAKEMAKE = str(ROOT / ".venv" / "bin" / "snakemake")
+PYTHON = str(ROOT / ".venv" / "bin" / "python")
+CI_CONFIG = "conf/workflow_ci.yaml"
+HANG_GUARD_S = 1800  # only against a hung run; no assertion is about time
+
+_memo: dict = {}
+
+
+def workdir(path: Path) -> Path:
+    path.mkdir(parents=True, exist_ok=True)
+    for name in ("conf", "workflow", "Snakefile", "profiles"):
+        if not (path / name).exists():
+            (path / name).symlink_to(ROOT / name)
+    return path
+
+
+def env(path: Path, **extra) -> dict:
+    e = {k: v for k, v in os.environ.items() if k not in ("MLFLOW_TRACKING_URI", "SNAKEMAKE_PROFILE")}
+    e.update({"QR_RESULTS": str(path / "results"), "QR_DATA": str(DATA), "QR_TRACKING": "on"})
+    e.update(extra)
+    return e
+
+
+def start(path: Path, *args, log: str = "snakemake.log", **extra_env) -> subprocess.Popen:
+    """Snakemake in ``path`` in a session of its own (so a signal can go to its process group, as
+    Ctrl-C at a terminal sends SIGINT to the whole foreground group)."""
+    out = open(path / log, "a")
+    return subprocess.Popen([SNAKEMAKE, *args], cwd=path, env=env(path, **extra_env), stdout=out,
+                            stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def snakemake(path: Path, *args, check=True, log: str = "snakemake.log", **extra_env) -> int:
+    p = start(path, *args, log=log, **extra_env)
+    rc = p.wait(timeout=HANG_GUARD_S)
+    if check and rc != 0:
+        raise AssertionError(f"snakemake {' '.join(args)} failed ({rc}); log:\n" + tail(path / log))
+    return rc
+
+
+def tail(p: Path, n: int = 60) -> str:
+    return "\n".join(Path(p).read_text(errors="replace").splitlines()[-n:]) if Path(p).exists() else ""
+
+
+def wait_for(condition, proc: subprocess.Popen, what: str, poll_s: float = 0.2):
+    """Wait until ``condition()`` is truthy (returns it); fail if ``proc`` ends first."""
+    deadline = time.monotonic() + HANG_GUARD_S
+    while time.monotonic() < deadline:
+        got = condition()
+        if got:
+            return got
+        if proc.poll() is not None:
+            raise AssertionError(f"the run ended ({proc.returncode}) before {what}")
+        time.sleep(poll_s)
+    raise AssertionError(f"hang guard: no {what}")
+
+
+def kill_group(proc: subprocess.Popen, sig) -> int:
+    os.killpg(proc.pid, sig)
+    return proc.wait(timeout=HANG_GUARD_S)
+
+
+# ---- what a run left ---------------------------------------------------------------------------
+
+TIME_COLUMN = re.compile(r"time", re.IGNORECASE)  # wall-clock measurements (train time): not results
+
+
+def tables(results: Path) -> dict[str, pd.DataFrame]:
+    """Every CSV table of a run (MLflow's artifact copies and Hydra's sweep folders aside), without
+    wall-clock columns."""
+    out = {}
+    for p in sorted(results.rglob("*.csv")):
+        rel = p.relative_to(results)
+        if rel.parts[0] in ("mlartifacts", "hydra", "benchmarks") or "hydra" in rel.parts:
+            continue
+        df = pd.read_csv(p)
+        out[str(rel)] = df[[c for c in df.columns if not TIME_COLUMN.search(str(c))]]
+    return out
+
+
+def broken_outputs(results: Path) -> list[str]:
+    """Outputs that are not whole: a CSV/Parquet/JSON that does not parse, a PNG without its end chunk,
+    an empty file.  Write-then-rename temporaries (hidden, named ``.*.qrtmp-*``) are not outputs."""
+    bad = []
+    for p in results.rglob("*"):
+        if not p.is_file() or p.name.startswith(".") or "mlartifacts" in p.parts or p.name.startswith("mlflow."):
+            continue
+        try:
+            if p.stat().st_size == 0 and p.suffix not in (".log",):
+                raise ValueError("empty")
+            if p.suffix == ".csv":
+                pd.read_csv(p)
+            elif p.suffix == ".parquet":
+                pd.read_parquet(p)
+            elif p.suffix == ".json":
+                json.loads(p.read_text())
+            elif p.suffix == ".png":
+                data = p.read_bytes()
+                if not (data.startswith(b"\x89PNG") and data.endswith(b"IEND\xaeB`\x82")):
+                    raise ValueError("truncated PNG")
+        except Exception as e:  # noqa: BLE001 - any failure to read is a broken output
+            bad.append(f"{p.relative_to(results)}: {e}")
+    return bad
+
+
+def temporaries(results: Path) -> list[Path]:
+    return [p for p in results.rglob("*") if ".qrtmp-" in p.name]
+
+
+def client(results: Path):
+    import mlflow
+
+    os.environ.setdefault("MLFLOW_SQLALCHEMYSTORE_POOLCLASS", "NullPool")
+    return mlflow.MlflowClient(tracking_uri=f"sqlite:///{results / 'mlflow.db'}")
+
+
+def all_runs(results: Path) -> dict:
+    """run id -> Run, every run of every experiment of the store."""
+    from mlflow.entities import ViewType
+
+    c = client(results)
+    exps = [e.experiment_id for e in c.search_experiments(view_type=ViewType.ALL)]
+    runs, token = {}, None
+    while exps:
+        page = c.search_runs(exps, "", ViewType.ALL, 1000, None, token)
+        runs.update({r.info.run_id: r for r in page})
+        token = page.token
+        if not token:
+            break
+    return runs
+
+
+def integrity(results: Path) -> str:
+    con = sqlite3.connect(f"file:{results / 'mlflow.db'}?mode=ro", uri=True)
+    try:
+        return con.execute("PRAGMA integrity_check").fetchone()[0]
+    finally:
+        con.close()
+
+
+def parent_files(results: Path) -> dict[str, str]:
+    """Open sweep parent runs: ``.mlflow_parent`` files of the learning sweeps (path -> run id)."""
+    out = {}
+    for p in (results / "learn").glob("*/.mlflow_parent"):
+        try:
+            out[str(p)] = p.read_text().strip()
+        except OSError:
+            pass
+    return {k: v for k, v in out.items() if v}
+
+
+# ---- the two full runs -------------------------------------------------------------------------
+
+def clean_run(tmp_path_factory) -> Path:
+    """One uninterrupted `snakemake --cores 2 --configfile conf/workflow_ci.yaml`; its results dir."""
+    if "clean" not in _memo:
+        path = workdir(tmp_path_factory.mktemp("ci_clean"))
+        snakemake(path, "--cores", "2", "--configfile", CI_CONFIG)
+        _memo["clean"] = path / "results"
+    return _memo["clean"]
+
+
+def faulted_run(tmp_path_factory) -> dict:
+    """The same workflow, interrupted twice and resumed with the plain command each time:
+
+    1. Ctrl-C (SIGINT to the whole process group) while a learning sweep's MLflow parent run is open;
+    2. rerun, then SIGKILL to the whole group (nothing can clean up) while a new sweep is open;
+    3. rerun: it must complete.
+
+    Returns what was observed after each step (return codes, the store's runs, lock and
+    incomplete markers, broken outputs)."""
+    if "faulted" in _memo:
+        return _memo["faulted"]
+    path = workdir(tmp_path_factory.mktemp("ci_faulted"))
+    results = path / "results"
+    args = ("--cores", "2", "--configfile", CI_CONFIG)
+    obs = {"path": path, "results": results}
+
+    p = start(path, *args)
+    first = wait_for(lambda: parent_files(results), p, "a learning sweep opened its parent run")
+    obs["sigint_rc"] = kill_group(p, signal.SIGINT)
+    obs["sigint_parents"] = set(first.values())
+    obs["after_sigint"] = all_runs(results)
+    obs["after_sigint_broken"] = broken_outputs(results)
+
+    seen = set(parent_files(results).values())
+    p = start(path, *args)
+    new = wait_for(lambda: set(parent_files(results).values()) - seen, p, "a resumed sweep opened its parent run")
+    obs["sigkill_rc"] = kill_group(p, signal.SIGKILL)
+    obs["sigkill_parents"] = new
+    obs["after_sigkill"] = all_runs(results)
+    obs["after_sigkill_broken"] = broken_outputs(results)
+    obs["locks_after_sigkill"] = sorted(x.name for x in (path / ".snakemake" / "locks").glob("*"))
+    obs["incomplete_after_sigkill"] = sorted(x.name for x in (path / ".snakemake" / "incomplete").rglob("*")
+                                             if x.is_file())
+
+    obs["resume_rc"] = snakemake(path, *args, check=False)
+    obs["resume_log"] = tail(path / "snakemake.log", 200)
+    obs["final"] = all_runs(results)
+    _memo["faulted"] = obs
+    return obs

@@ -1,0 +1,76 @@
+# Diagnose: each measured flight alone, each flight set together, and the engineer's chain
+# (the no-payload set first; its extended vehicle, with the payload frame's mass, is the
+# nominal model of the payload set).  Outputs under results/diagnosis/ and results/tables/.
+
+
+rule diagnose_set:
+    input:
+        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
+        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        vehicle=diagnosis_vehicle,
+    output:
+        directory("results/diagnosis/{set}/all"),
+    log:
+        "results/logs/diagnose/{set}_all.log",
+    benchmark:
+        "results/benchmarks/diagnose/{set}_all.tsv"
+    params:
+        overrides=list(DIAG.get("overrides", [])),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/diagnose_set.py"
+
+
+rule diagnose_each:
+    input:
+        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
+        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        vehicle=diagnosis_vehicle,
+    output:
+        flights=directory("results/diagnosis/{set}/flights"),
+        table="results/tables/diagnosis_flights_{set}.csv",
+    log:
+        "results/logs/diagnose/{set}_flights.log",
+    benchmark:
+        "results/benchmarks/diagnose/{set}_flights.tsv"
+    params:
+        overrides=list(DIAG.get("overrides", [])) + list(DIAG.get("each_overrides", [])),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/diagnose_each.py"
+
+
+rule carry_over:
+    input:
+        first=expand(rules.diagnose_set.output[0], set=DIAG_FIRST),
+        base=vehicle_file(DIAG_CARRY) if DIAG_CARRY in SETS else [],
+    output:
+        f"results/diagnosis/{DIAG_CARRY}/vehicle.yaml",
+    log:
+        "results/logs/diagnose/carry_over.log",
+    benchmark:
+        "results/benchmarks/diagnose/carry_over.tsv"
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/carry_over.py"
+
+
+rule diagnosis_summary:
+    input:
+        sets=expand(rules.diagnose_set.output[0], set=list(SETS)),
+        each=expand(rules.diagnose_each.output.table, set=list(SETS)),
+    output:
+        table="results/tables/diagnosis_summary.csv",
+    log:
+        "results/logs/diagnose/summary.log",
+    benchmark:
+        "results/benchmarks/diagnose/summary.tsv"
+    params:
+        names=list(SETS),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/diagnosis_summary.py"

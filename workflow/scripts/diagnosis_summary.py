@@ -1,0 +1,8 @@
+"""Snakemake rule `diagnosis_summary`: the set diagnoses side by side."""
+import sys
+
+from qr.diagnose.batch import summary
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    summary(dict(zip(snakemake.params.names, snakemake.input.sets)), snakemake.output.table)
