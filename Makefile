@@ -3,7 +3,12 @@ PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed-from-lock
 
-.PHONY: install reproduce test report clean-results
+.PHONY: install reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
+
+# MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see notes/README-operations.md)
+MLFLOW_HOST  ?= 127.0.0.1
+MLFLOW_PORT  ?= 5000
+MLFLOW_STORE ?= sqlite:///results/mlflow.db
 
 # (Re)create the environment whenever the lock or the package metadata changes.
 $(STAMP): environment.lock pyproject.toml
@@ -24,3 +29,27 @@ test: install
 
 clean-results:
 	rm -rf results
+
+# The whole workflow on the reduced config (2 flights per set, small sweeps; what the tests run).
+reproduce-ci: install
+	$(VENV)/bin/snakemake --cores 2 --configfile conf/workflow_ci.yaml
+
+# The same through Snakemake's generic-cluster executor with local stand-ins for submit/status/cancel.
+cluster-local: install
+	$(VENV)/bin/snakemake --profile profiles/local-cluster --configfile conf/workflow_ci.yaml
+
+# Browse the runs: one experiment per stage (qr-ingest, qr-filter, qr-learn, ...).  Ctrl-C stops it.
+mlflow-ui: install
+	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow ui --backend-store-uri $(MLFLOW_STORE) \
+	    --host $(MLFLOW_HOST) --port $(MLFLOW_PORT) --workers 1
+
+# A tracking server for shared tracking (jobs on other machines: MLFLOW_TRACKING_URI=http://<host>:$(MLFLOW_PORT)).
+# Artifacts are uploaded through the server into results/mlartifacts.
+mlflow-server: install
+	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow server --backend-store-uri $(MLFLOW_STORE) \
+	    --artifacts-destination results/mlartifacts --host $(MLFLOW_HOST) --port $(MLFLOW_PORT) --workers 1
+
+# docs/mlflow_ui.png: headless Chromium against `make mlflow-ui` (needs Debian's chromium).
+mlflow-screenshot: install
+	$(VENV)/bin/python docs/mlflow_screenshot.py docs/mlflow_ui.png
+

@@ -25,7 +25,19 @@ examples:
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
 
-stages with Hydra configs (conf/): python -m qr.filter | qr.train | qr.simulate  (--help each)
+stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a sweep):
+  python -m qr.filter    Kalman filters / smoother: canonical flight -> state table + NIS report
+      python -m qr.filter filter=auto filter.flight=flight.csv filter.vehicle=vehicle.yaml filter.out=states.parquet
+  python -m qr.train     train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
+      python -m qr.train -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
+  python -m qr.simulate  closed-loop tracking study and stability analysis (thesis Chapter 5)
+      python -m qr.simulate sim.task=stability
+
+the whole workflow (Snakefile; notes/README-operations.md):
+  snakemake --cores 2                                          every stage, resumable after a kill
+  snakemake --cores 2 --configfile conf/workflow_ci.yaml       the reduced run (tests, CI)
+  snakemake --profile profiles/slurm                           on SLURM (profiles/local-cluster: local test)
+  make mlflow-ui                                               browse the runs at http://127.0.0.1:5000
 """
 
 
@@ -71,7 +83,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--v-max", type=float, default=2.5, help="peak horizontal speed, m/s")
     s.add_argument("--tilt-max", type=float, default=25.0, help="peak tilt, degrees")
 
-    s = sub.add_parser("summary", help="table of ingested flights")
+    s = sub.add_parser("summary", help="table of ingested flights", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr summary results/ingest/brushless/*.parquet "
+                              "--vehicle conf/vehicle/crazyflie21_brushless.yaml --out summary.csv\n"
+                              "writes summary.csv and its Markdown twin summary.md")
     s.add_argument("flights", nargs="+")
     s.add_argument("--vehicle", required=True)
     s.add_argument("--out", required=True, help="CSV (a Markdown twin is written beside it)")

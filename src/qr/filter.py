@@ -31,7 +31,9 @@ def nis_path(out: str | Path) -> Path:
 
 
 def _metrics(report: dict, seconds: float) -> dict:
-    m = {"seconds": seconds, "inconsistent_filters": len(report["inconsistent"])}
+    m = {"inconsistent_filters": len(report["inconsistent"])}
+    if seconds is not None:  # (a deferred run has no timing: the report file must stay reproducible)
+        m["seconds"] = seconds
     for f, stats in report["nis"].items():
         for name, st in ({"": stats} if "mean" in stats else {f".{k}": v for k, v in stats.items()}).items():
             if st.get("mean") is not None:
@@ -45,24 +47,36 @@ def _metrics(report: dict, seconds: float) -> dict:
 
 
 def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: str | None = None,
-               progress: bool = False) -> dict:
-    """Filter one flight file, write the state table and the NIS report atomically, track it in MLflow."""
-    from .estimation.plots import nis_figure
+               progress: bool = False, track: bool = True) -> dict:
+    """Filter one flight file, write the state table and the NIS report atomically, track it in MLflow.
 
+    ``track=False`` leaves the MLflow run to :func:`track_runs` (the workflow logs all flights'
+    runs from one process: importing MLflow per job would cost more than filtering).
+    """
     flight_path = Path(flight_path)
     name = name or flight_path.stem
     flight = read_flight(flight_path)
     vehicle = load_vehicle(vehicle_file) if vehicle_file else None
     cfg = {k: v for k, v in filter_cfg.items() if k not in ("flight", "out", "vehicle")}
-    inputs = [flight_path] + ([Path(vehicle_file)] if vehicle_file else [])
-    with tracking.run("filter", name, config={"filter": cfg, "vehicle": str(vehicle_file)}, inputs=inputs) as run:
-        start = time.perf_counter()
-        states, report = estimate(flight, vehicle, cfg, progress=progress, source=str(flight_path))
-        seconds = time.perf_counter() - start
-        report["flight"] = name
-        with atomic_path(out, suffix=".parquet") as tmp:
-            states.to_parquet(tmp, index=False)
-        write_json(nis_out, report)
+    start = time.perf_counter()
+    states, report = estimate(flight, vehicle, cfg, progress=progress, source=str(flight_path))
+    seconds = time.perf_counter() - start
+    report["flight"] = name
+    report["config"] = cfg
+    with atomic_path(out, suffix=".parquet") as tmp:
+        states.to_parquet(tmp, index=False)
+    write_json(nis_out, report)
+    if track:
+        _track(name, flight_path, vehicle_file, report, states, nis_out, seconds)
+    return report
+
+
+def _track(name, flight_path, vehicle_file, report, states, nis_out, seconds=None) -> None:
+    from .estimation.plots import nis_figure
+
+    inputs = [Path(flight_path)] + ([Path(vehicle_file)] if vehicle_file else [])
+    with tracking.run("filter", name, config={"filter": report["config"], "vehicle": str(vehicle_file)},
+                      inputs=inputs) as run:
         run.metrics(_metrics(report, seconds))
         run.tags({"qr.filter": report["filter"], "qr.nis_inconsistent": ",".join(report["inconsistent"]) or "none"})
         run.artifact(nis_out)
@@ -71,13 +85,23 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
                 fig = Path(d) / f"{name.replace('/', '_')}_nis.png"
                 nis_figure(states, report, fig, title=name)
                 run.artifact(fig)
-    return report
 
 
-def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), name=None) -> dict:
+def track_runs(names, flights, vehicles, states_files, nis_files) -> None:
+    """One MLflow run per filtered flight, for flights filtered with ``track=False``."""
+    import json
+
+    import pandas as pd
+
+    for name, f, v, st, nis in zip(names, flights, vehicles, states_files, nis_files):
+        _track(name, f, v, json.loads(Path(nis).read_text()), pd.read_parquet(st), nis)
+
+
+def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), name=None, track=True) -> dict:
     """Compose the Hydra config with ``overrides`` (``['filter=auto']``) and run :func:`run_filter`."""
     cfg = to_dict(compose(list(overrides)))
-    return run_filter(flight_path, vehicle_file or vehicle_path(cfg["vehicle"]), out, nis_out, cfg["filter"], name)
+    return run_filter(flight_path, vehicle_file or vehicle_path(cfg["vehicle"]), out, nis_out, cfg["filter"], name,
+                      track=track)
 
 
 def figures(flight_path, states_path, outdir, title: str = "") -> list[Path]:

@@ -141,10 +141,14 @@ def snakemake_guard(snakemake_dir=".snakemake", log=sys.stderr) -> list[Path]:
     """
     base = Path(snakemake_dir)
     owners = base / "qr-owners"
+    me = identity()
+    mine = owners / f"{me['host']}.{me['pid']}.{me['start']}"
     live = []
     if owners.is_dir():
         for f in owners.iterdir():
             parts = f.name.split(".")
+            if f == mine:
+                continue  # this process is about to take the lock, it cannot hold it already
             if len(parts) == 3 and parts[0] == host() and not alive(parts[1], parts[2]):
                 f.unlink(missing_ok=True)
             else:
@@ -160,10 +164,9 @@ def snakemake_guard(snakemake_dir=".snakemake", log=sys.stderr) -> list[Path]:
                   "no Snakemake process of it is alive)", file=log)
     try:
         owners.mkdir(parents=True, exist_ok=True)
-        me = identity()
-        mine = owners / f"{me['host']}.{me['pid']}.{me['start']}"
-        mine.touch()
-        atexit.register(lambda: mine.unlink(missing_ok=True))
+        if not mine.exists():
+            mine.touch()
+            atexit.register(lambda: mine.unlink(missing_ok=True))
     except OSError:
         pass
     return removed

@@ -28,6 +28,7 @@ import os
 import random
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -197,12 +198,30 @@ def _raise_terminated(signum, frame):
     raise Terminated(f"terminated by signal {signum}")
 
 
+def _redeliver_swallowed(unraisable) -> None:
+    """``sys.unraisablehook`` while a run is open.  An interrupt that lands in a finalizer or a weakref
+    callback (SQLAlchemy has many) is printed and dropped by Python, and the job would go on as if
+    never interrupted; the signal is sent again a moment later (from a timer thread: sent from here it
+    would be raised here again), until it lands outside a finalizer."""
+    exc = unraisable.exc_type
+    if exc is not None and issubclass(exc, KeyboardInterrupt):
+        sig = signal.SIGTERM if issubclass(exc, Terminated) else signal.SIGINT
+        timer = threading.Timer(0.1, os.kill, (os.getpid(), sig))
+        timer.daemon = True
+        timer.start()
+    (_previous_hook or sys.__unraisablehook__)(unraisable)
+
+
+_previous_hook = None
+
+
 @contextlib.contextmanager
 def _sigterm_raises() -> Iterator[None]:
     """While a run is open, SIGTERM raises :class:`Terminated` in the main thread instead of ending
     the process on the spot, so the run's status can be written.  Only the default action is
     replaced: a handler installed by someone else (submitit's, say) is left alone."""
-    installed = False
+    global _previous_hook
+    installed = hooked = False
     if threading.current_thread() is threading.main_thread():
         try:
             if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
@@ -210,11 +229,16 @@ def _sigterm_raises() -> Iterator[None]:
                 installed = True
         except (ValueError, OSError):
             pass
+        if sys.unraisablehook is not _redeliver_swallowed:
+            _previous_hook, sys.unraisablehook = sys.unraisablehook, _redeliver_swallowed
+            hooked = True
     try:
         yield
     finally:
         if installed and signal.getsignal(signal.SIGTERM) is _raise_terminated:
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        if hooked and sys.unraisablehook is _redeliver_swallowed:
+            sys.unraisablehook, _previous_hook = _previous_hook, None
 
 
 @contextlib.contextmanager

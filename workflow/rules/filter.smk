@@ -1,4 +1,5 @@
-# Filter: every ingested flight -> state table + NIS report (one MLflow run each), a NIS summary
+# Filter: every ingested flight -> state table + NIS report, a NIS summary (and one MLflow run per flight:
+# logged by filter_summary from one process, since importing MLflow costs more than filtering a flight),
 # over all flights, and thesis-style figures (Figs. 4.2-4.8) for one chosen flight.
 # The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`.
 
@@ -31,6 +32,9 @@ rule filter:
 rule filter_summary:
     input:
         nis=[p for s in SETS for p in flights_of(s, rules.filter.output.nis)],
+        states=[p for s in SETS for p in flights_of(s, rules.filter.output.states)],
+        flights=[p for s in SETS for p in flights_of(s, rules.ingest.output[0])],
+        vehicles=[vehicle_file(s) for s in SETS for _ in SETS[s]["flights"]],
     output:
         table="results/filter/summary.csv",
         markdown="results/filter/summary.md",

@@ -1,4 +1,4 @@
-"""Snakemake rule `filter`: one canonical flight -> state table + NIS report (+ MLflow run)."""
+"""Snakemake rule `filter`: one canonical flight -> state table + NIS report (MLflow run: filter_summary)."""
 import sys
 
 from qr.filter import run_with_overrides
@@ -6,4 +6,4 @@ from qr.filter import run_with_overrides
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     run_with_overrides(snakemake.input.flight, snakemake.input.vehicle, snakemake.output.states,
-                       snakemake.output.nis, snakemake.params.overrides, snakemake.params.name)
+                       snakemake.output.nis, snakemake.params.overrides, snakemake.params.name, track=False)

@@ -269,8 +269,9 @@ def _inconsistent(row_stats, base: list[str], effect: str, cfg: SelectionConfig)
     bad = (diff > cfg.consistency_t * np.sqrt(sf**2 + stt**2)) & (diff > cfg.consistency_rel * np.maximum(
         np.abs(tf), np.abs(tt)))
     if np.any(bad):
-        return (f"force rows give {np.array2string(tf, precision=4)}, torque rows "
-                f"{np.array2string(tt, precision=4)}")
+        eff = CATALOG[effect]
+        show = lambda th: ", ".join(f"{p} = {v + n:.4g}" for p, v, n in zip(eff.params, th, eff.neutral))  # noqa: E731
+        return f"its physics disagrees with itself: the force rows give {show(tf)}, the torque rows {show(tt)}"
     return None
 
 
@@ -317,8 +318,7 @@ def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), ro
                 confounded.append(c)
                 continue
             verdict = _separate(stats, current, chosen, c, cfg)
-            if verdict == "rival":
-                confounded.append(chosen)
+            if verdict == "rival":  # the data prefer c: the other is not needed (it stays a candidate)
                 chosen = c
             elif verdict == "confounded":
                 confounded.append(c)

@@ -76,8 +76,12 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     if s["tune"]["enabled"]:
         from tqdm import tqdm
 
+        # the noise is stationary: a long flight is tuned on its middle window (each search runs the
+        # filter ~40 times)
+        n, M = len(t), int(s["tune"]["max_samples"])
+        w = slice((n - M) // 2, (n - M) // 2 + M) if n > M else slice(None)
         for f in tqdm(FILTERS, desc="filter=auto: likelihood search", disable=not progress):
-            tuned[f] = tune(f, t, meas[f], keep, s["tune"]["min_corner_hz"], int(s["tune"]["grid"]),
+            tuned[f] = tune(f, t[w], meas[f][w], keep[w], s["tune"]["min_corner_hz"], int(s["tune"]["grid"]),
                             int(s["tune"]["rounds"]), speed_scale, s["attitude"]["reset_deg"])
             s[f]["q"], s[f]["r"] = tuned[f]["q"], tuned[f]["r"]
     disc, smooth, ref = s["discretisation"], bool(s["smoother"]), s["implementation"] == "reference"

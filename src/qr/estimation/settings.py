@@ -25,7 +25,7 @@ DEFAULTS = {
     "attitude": {"q": attitude_eskf.THESIS_Q.tolist(), "r": attitude_eskf.THESIS_R,
                  "reset_deg": attitude_eskf.RESET_DEG},
     "motor": {"q": motor_kf.THESIS_Q, "r": motor_kf.THESIS_R},
-    "tune": {"enabled": False, "min_corner_hz": 0.05, "grid": 13, "rounds": 2},
+    "tune": {"enabled": False, "min_corner_hz": 0.05, "grid": 13, "rounds": 2, "max_samples": 60000},
     "nis": {"confidence": 0.95, "burn_in_s": 1.0},
     "flight": None,  # input, output and vehicle of `python -m qr.filter`; ignored by estimate()
     "out": None,
@@ -84,6 +84,8 @@ def resolve(cfg: dict | None) -> dict:
         raise _bad("tune.enabled needs discretisation: exact (q as a noise intensity, valid at any dt)",
                    "use filter=auto, or set filter.discretisation=exact")
     _positive(s["tune"]["min_corner_hz"], "tune.min_corner_hz")
+    if int(s["tune"]["max_samples"]) < 100:
+        raise _bad(f"'tune.max_samples' must be at least 100, got {s['tune']['max_samples']!r}")
     if int(s["tune"]["grid"]) < 3 or int(s["tune"]["rounds"]) < 1:
         raise _bad("tune.grid must be >= 3 and tune.rounds >= 1")
     return s
