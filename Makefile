@@ -25,7 +25,7 @@ reproduce: install
 	$(VENV)/bin/snakemake --report results/report.html
 
 test: install
-	$(VENV)/bin/pytest
+	$(VENV)/bin/pytest -n 2 --dist loadgroup
 
 clean-results:
 	rm -rf results

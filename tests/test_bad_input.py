@@ -12,7 +12,7 @@ from test_flight_io import _flight
 HB = VEHICLES / "asctec_hummingbird.yaml"
 
 
-def _expect_rejected(capsys, tmp_path, args, *phrases):
+def assert_rejected(capsys, tmp_path, args, *phrases):
     out = tmp_path / "out" / "flight.csv"
     status, _, err = run_cli([*args, "--out", out], capsys)
     assert status == 2
@@ -65,14 +65,14 @@ def test_bad_flight_csv(case, phrases, tmp_path, capsys):
     elif case == "header_only":
         df = df.iloc[:0]
     path = _csv(tmp_path, df)
-    line = _expect_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], *phrases)
+    line = assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], *phrases)
     assert str(path) in line
 
 
 def test_empty_file(tmp_path, capsys):
     path = tmp_path / "empty.csv"
     path.write_text("")
-    _expect_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], "empty", str(path))
+    assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], "empty", str(path))
 
 
 @pytest.mark.parametrize("damage", ["truncated", "corrupted"])
@@ -85,7 +85,7 @@ def test_damaged_binary_log(damage, tmp_path, capsys):
         data[len(data) // 3] ^= 0xFF
     path = tmp_path / "eckart00"
     path.write_bytes(bytes(data))
-    _expect_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", VEHICLES / "crazyflie21_brushless.yaml"],
+    assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", VEHICLES / "crazyflie21_brushless.yaml"],
                      "CRC32 check failed", "truncated or corrupted", str(path))
 
 
@@ -111,7 +111,7 @@ def test_bad_vehicle(edit, phrases, tmp_path, capsys):
     vpath = tmp_path / "vehicle.yaml"
     vpath.write_text(yaml.safe_dump(raw))
     flight = _csv(tmp_path, _flight(), "ok.csv")
-    _expect_rejected(capsys, tmp_path, ["ingest", flight, "--vehicle", vpath], str(vpath), *phrases)
+    assert_rejected(capsys, tmp_path, ["ingest", flight, "--vehicle", vpath], str(vpath), *phrases)
 
 
 def test_thesis_inertia_warns_with_the_fix(tmp_path, capsys):

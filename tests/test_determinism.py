@@ -11,6 +11,9 @@ import pytest
 
 import workflow_runs as wr
 
+# the whole-workflow runs are shared (memoised) between these modules: keep them on one xdist worker
+pytestmark = pytest.mark.xdist_group("reduced_workflow")
+
 
 @pytest.fixture(scope="session")
 def clean(tmp_path_factory):

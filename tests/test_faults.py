@@ -100,6 +100,9 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import textwrap  # noqa: E402
 
+# the whole-workflow runs are shared (memoised) between these modules: keep them on one xdist worker
+pytestmark = pytest.mark.xdist_group("reduced_workflow")
+
 OPEN_RUN = textwrap.dedent("""
     import sys, time
     from qr import tracking

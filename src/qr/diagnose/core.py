@@ -275,9 +275,26 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         "named": named,
         "pred_test": pred_test,
     }
+    result["anatomy"] = anatomy(stats, s_test, y_test, prep.sd[test], vehicle, candidates)
     step("replay")
     result["replay"] = _replay_all(states_list, measured_list, vehicle, effects, cfg, prep)
     return result
+
+
+def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.ndarray, vehicle,
+            candidates: list[str]) -> dict:
+    """Share of each axis's held-out residual variance that each candidate explains alone (fit on train).
+
+    Net of the noise floor: a share of 1 would leave only noise.  Negative: it does worse than nothing.
+    """
+    out = {}
+    base = np.nanmean(y_test**2, axis=0)
+    signal = np.maximum(base - np.nanmean(sd_test**2, axis=0), 1e-300)
+    for e in candidates:
+        pred = predict(s_test, vehicle, [e], fit(stats, [e]))
+        gain = base - np.nanmean((y_test - pred) ** 2, axis=0)
+        out[e] = (gain / signal).tolist()
+    return out
 
 
 def extended_effects(effects: list[dict]) -> list[dict]:

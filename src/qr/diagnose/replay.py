@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from ..frames import quat_to_rot
-from ..sim.plant import P_DELAY, P_MARKER, cross, plant_accels, quat_to_R, true_params
+from ..sim.plant import P_DELAY, P_MARKER, cross, quat_to_R, rigid_body_deriv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 
@@ -39,17 +39,8 @@ def _speeds_at(t, tt, U, k):
 
 @nb.njit(cache=True)
 def _xdot(x, ue, P, zero):
-    a, alpha = plant_accels(x, ue, P, zero, zero)
     dx = np.empty(13)
-    dx[0:3] = x[3:6]
-    dx[3:6] = a
-    q = x[6:10]
-    w = x[10:13]
-    dx[6] = 0.5 * (-q[1] * w[0] - q[2] * w[1] - q[3] * w[2])
-    dx[7] = 0.5 * (q[0] * w[0] + q[2] * w[2] - q[3] * w[1])
-    dx[8] = 0.5 * (q[0] * w[1] + q[3] * w[0] - q[1] * w[2])
-    dx[9] = 0.5 * (q[0] * w[2] + q[1] * w[1] - q[2] * w[0])
-    dx[10:13] = alpha
+    rigid_body_deriv(x, ue, P, zero, zero, dx)
     return dx
 
 

@@ -49,6 +49,7 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
         "noise_floor": {"force_rmse": _r(res["noise_floor_rmse"][:3]), "torque_rmse": _r(res["noise_floor_rmse"][3:]),
                         "source": res.get("noise_source", "filter covariance")},
         "remainder": res.get("remainder", {}),
+        "anatomy": {k: _r(v, 4) for k, v in res.get("anatomy", {}).items()},
         "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
                       "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
                       "steps": [_clean(s) for s in res["selection"]["steps"]],
@@ -134,6 +135,16 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             dec += f" (confounded: {', '.join(s['confounded'])})"
         L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {dec} |")
     L.append("")
+    if res.get("anatomy"):
+        L.append("Residual anatomy: share of each axis's held-out residual (above the noise floor) that each "
+                 "candidate explains on its own, fitted on the training part (1 = all of it, < 0 = worse than "
+                 "nothing; shares of different candidates overlap):\n")
+        L.append("| candidate | " + " | ".join(AXES) + " |")
+        L.append("|---|" + "---:|" * 6)
+        for name, shares in sorted(res["anatomy"].items(), key=lambda kv: -max(kv[1])):
+            cells = " | ".join("-" if abs(x) < 0.005 else f"{x:.2f}" for x in shares)
+            L.append(f"| `{name}` | {cells} |")
+        L.append("")
     if doc["selection"].get("rejected"):
         L.append("Candidates rejected as unphysical on this data:\n")
         for name, why in doc["selection"]["rejected"].items():

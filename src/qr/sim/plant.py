@@ -149,8 +149,8 @@ def plant_accels(x, u_eff, P, f_ext, tau_ext):
 
 
 @nb.njit(cache=True)
-def deriv(x, u_cmd, u_eff, P, f_ext, tau_ext):
-    dx = np.empty(N_X)
+def rigid_body_deriv(x, u_eff, P, f_ext, tau_ext, dx):
+    """Derivatives of p, v, q, ω (``dx[0:13]``) with the rotor speeds ``u_eff`` acting."""
     a, alpha = plant_accels(x, u_eff, P, f_ext, tau_ext)
     dx[0:3] = x[3:6]
     dx[3:6] = a
@@ -162,6 +162,12 @@ def deriv(x, u_cmd, u_eff, P, f_ext, tau_ext):
     dx[8] = 0.5 * (q[0] * w[1] + q[3] * w[0] - q[1] * w[2])
     dx[9] = 0.5 * (q[0] * w[2] + q[1] * w[1] - q[2] * w[0])
     dx[10:13] = alpha
+
+
+@nb.njit(cache=True)
+def deriv(x, u_cmd, u_eff, P, f_ext, tau_ext):
+    dx = np.empty(N_X)
+    rigid_body_deriv(x, u_eff, P, f_ext, tau_ext, dx)
     dx[13:17] = (u_cmd - x[13:17]) / P[P_TAU]
     return dx
 
