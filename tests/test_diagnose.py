@@ -134,3 +134,27 @@ def test_extended_vehicle_feeds_back_into_a_second_diagnosis(tmp_path):
     doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "d" / "extended_vehicle.yaml", tmp_path / "d2",
                         log=lambda m: None)
     assert doc["effects"] == []
+
+
+def test_thrust_gain_on_force_rows_when_the_torque_channel_disagrees(tmp_path):
+    """The Crazyflie situation: measured roll/pitch torque far from the rotor map's.
+
+    A thrust_gain of 1.08 is hidden; the diagnosis vehicle states a fifth of the true
+    inertia, so J α reads 1.08/5 = 0.216 of the nominal rotor-map torque.  The torque
+    rows cannot arbitrate C_T (they would need 0.216, beyond the 0.5 bound): thrust_gain
+    must be fitted on the force rows (1.08), named once, with mass_error confounded.
+    """
+    _case(tmp_path, ["thrust_gain"], seed=5)
+    raw = yaml.safe_load((tmp_path / "s" / "vehicle.yaml").read_text())
+    raw["inertia"] = [j / 5 for j in raw["inertia"]]
+    (tmp_path / "fifth.yaml").write_text(yaml.safe_dump(raw))
+    doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "fifth.yaml", tmp_path / "d5", log=lambda m: None)
+    arb = doc["selection"]["torque_arbitration"]["thrust_gain"]
+    assert arb["force_rows"][0] == pytest.approx(1.08, abs=0.02)
+    # noise in the rotor-speed regressor attenuates the torque-row slope towards 1 (errors in variables):
+    # between the noise-free 0.216 and the 0.5 bound
+    assert 1.08 / 5 - 0.01 <= arb["torque_rows"][0] < 0.5
+    named = {e["name"]: e for e in doc["effects"]}
+    assert "thrust_gain" in named and "mass_error" not in named, doc["selection"]
+    assert named["thrust_gain"]["parameters"]["gain"] == pytest.approx(1.08, abs=0.02)
+    assert named["thrust_gain"]["confounded_with"] == ["mass_error"]

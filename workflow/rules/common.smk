@@ -45,6 +45,12 @@ DIAG_FIRST = DIAG.get("first", "brushless")
 DIAG_CARRY = DIAG.get("carry_to", "payload")
 
 
+def diagnosis_overrides(set_name, key="overrides"):
+    """Hydra overrides of a set's diagnoses; the carry-to set adds ``carry_overrides``."""
+    extra = list(DIAG.get("carry_overrides", [])) if set_name == DIAG_CARRY and DIAG_FIRST in SETS else []
+    return list(DIAG.get("overrides", [])) + (list(DIAG.get(key, [])) if key != "overrides" else []) + extra
+
+
 def diagnosis_vehicle(wildcards):
     """The carry-over set is diagnosed with the first set's extended vehicle (rule carry_over)."""
     if wildcards.set == DIAG_CARRY and DIAG_FIRST in SETS:

@@ -15,7 +15,7 @@ rule diagnose_set:
     benchmark:
         "results/benchmarks/diagnose/{set}_all.tsv"
     params:
-        overrides=list(DIAG.get("overrides", [])),
+        overrides=lambda wc: diagnosis_overrides(wc.set),
     conda:
         "../envs/qr.yaml"
     script:
@@ -35,7 +35,7 @@ rule diagnose_each:
     benchmark:
         "results/benchmarks/diagnose/{set}_flights.tsv"
     params:
-        overrides=list(DIAG.get("overrides", [])) + list(DIAG.get("each_overrides", [])),
+        overrides=lambda wc: diagnosis_overrides(wc.set, "each_overrides"),
     conda:
         "../envs/qr.yaml"
     script:

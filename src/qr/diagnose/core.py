@@ -18,7 +18,7 @@ from ..states import signals
 from . import replay as replay_mod
 from .noise import noise_sd
 from .selection import (BlockStats, Columns, SelectionConfig, accumulate, bootstrap, design, fit,
-                        forward_select, loss, solve)
+                        forward_select, loss, solve, torque_arbitration)
 
 AXES = ["fx", "fy", "fz", "tx", "ty", "tz"]
 CHUNK = 20000
@@ -133,10 +133,10 @@ def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = N
     return BlockStats(G, h, s, n, cols, lb, ub)
 
 
-def predict(s: Signals, vehicle, effects: list[str], theta: np.ndarray) -> np.ndarray:
+def predict(s: Signals, vehicle, effects: list[str], theta: np.ndarray, force_only=()) -> np.ndarray:
     if not effects:
         return np.zeros((len(s), 6))
-    cols = Columns.of(effects)
+    cols = Columns.of(effects, force_only)
     out = np.zeros((len(s), 6))
     for start in range(0, len(s), CHUNK):
         sl = slice(start, start + CHUNK)
@@ -144,16 +144,17 @@ def predict(s: Signals, vehicle, effects: list[str], theta: np.ndarray) -> np.nd
     return out
 
 
-def extended_prediction(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, idx=None) -> np.ndarray:
+def extended_prediction(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, idx=None,
+                        force_only=()) -> np.ndarray:
     """Terms of the named effects on samples ``idx`` of ``prep``; the delay by its exact map."""
     idx = np.arange(len(prep.t)) if idx is None else idx
     s = prep.s.take(idx)
     if "actuator_delay" not in named:
-        return predict(s, vehicle, named, theta)
+        return predict(s, vehicle, named, theta, force_only)
     others = [e for e in named if e != "actuator_delay"]
     cols = Columns.of(named)
     d = float(theta[cols.slices["actuator_delay"]][0])
-    return predict(s, vehicle, others, theta[cols.index(others)]) + exact_delay_term(prep, vehicle, d)[idx]
+    return predict(s, vehicle, others, theta[cols.index(others)], force_only) + exact_delay_term(prep, vehicle, d)[idx]
 
 
 def to_parameters(effects: list[str], theta: np.ndarray, se: np.ndarray | None = None):
@@ -171,7 +172,8 @@ def rms(x: np.ndarray, axis=0) -> np.ndarray:
     return np.sqrt(np.nanmean(x**2, axis=axis))
 
 
-def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, cfg: DiagnoseConfig):
+def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, cfg: DiagnoseConfig,
+                 force_only=()):
     """Replace actuator_delay's first-order term by the exact delayed rotor map (1-D search).
 
     Returns the refined delay and the other effects' parameters.
@@ -179,7 +181,7 @@ def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, c
     from scipy.optimize import minimize_scalar
 
     others = [e for e in named if e != "actuator_delay"]
-    cols = Columns.of(others)
+    cols = Columns.of(others, force_only)
 
     def train_loss(d):
         yd = prep.y - exact_delay_term(prep, vehicle, d)
@@ -218,7 +220,14 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     prep = prepare(states_list, vehicle, cfg)
     fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
-    cols = Columns.of(candidates)
+    # may the roll/pitch torque arbitrate C_T?  (a one-column check before the full statistics)
+    arb = {}
+    if "thrust_gain" in candidates:
+        tg = Columns.of(["thrust_gain"])
+        arb = torque_arbitration((block_stats(fitprep, vehicle, tg, rows=[0, 1, 2]),
+                                  block_stats(fitprep, vehicle, tg, rows=[3, 4, 5])))
+    force_only = frozenset(arb)
+    cols = Columns.of(candidates, force_only)
     step("normal equations")
     stats = block_stats(fitprep, vehicle, cols)
     row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]), block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
@@ -235,12 +244,12 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     y_test = prep.y[test]
     if "actuator_delay" in named:
         step("exact delay")
-        d, th_other = refine_delay(fitprep, vehicle, named, theta, cfg)
+        d, th_other = refine_delay(fitprep, vehicle, named, theta, cfg, force_only)
         others = [e for e in named if e != "actuator_delay"]
         theta = theta.copy()
         theta[Columns.of(named).index(others)] = th_other
         theta[Columns.of(named).slices["actuator_delay"]] = d
-    pred_test = extended_prediction(prep, vehicle, named, theta, np.flatnonzero(test))
+    pred_test = extended_prediction(prep, vehicle, named, theta, np.flatnonzero(test), force_only)
     effects = to_parameters(named, theta, se)
 
     # held-out evaluation
@@ -251,7 +260,7 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     for e in named:
         rest = [x for x in named if x != e]
         th_rest = fit(stats, rest) if rest else np.zeros(0)
-        r_rest = y_test - predict(s_test, vehicle, rest, th_rest)
+        r_rest = y_test - predict(s_test, vehicle, rest, th_rest, force_only)
         explained[e] = float((np.nanmean(w_test * r_rest**2) - np.nanmean(w_test * ext_resid**2)) / base_loss)
     for e in effects:
         e["explained_fraction"] = explained[e["name"]]
@@ -274,15 +283,17 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         "theta": theta,
         "named": named,
         "pred_test": pred_test,
+        "force_only": force_only,
+        "torque_arbitration": arb,
     }
-    result["anatomy"] = anatomy(stats, s_test, y_test, prep.sd[test], vehicle, candidates)
+    result["anatomy"] = anatomy(stats, s_test, y_test, prep.sd[test], vehicle, candidates, force_only)
     step("replay")
     result["replay"] = _replay_all(states_list, measured_list, vehicle, effects, cfg, prep)
     return result
 
 
 def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.ndarray, vehicle,
-            candidates: list[str]) -> dict:
+            candidates: list[str], force_only=()) -> dict:
     """Share of each axis's held-out residual variance that each candidate explains alone (fit on train).
 
     Net of the noise floor: a share of 1 would leave only noise.  Negative: it does worse than nothing.
@@ -291,7 +302,7 @@ def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.
     base = np.nanmean(y_test**2, axis=0)
     signal = np.maximum(base - np.nanmean(sd_test**2, axis=0), 1e-300)
     for e in candidates:
-        pred = predict(s_test, vehicle, [e], fit(stats, [e]))
+        pred = predict(s_test, vehicle, [e], fit(stats, [e]), force_only)
         gain = base - np.nanmean((y_test - pred) ** 2, axis=0)
         out[e] = (gain / signal).tolist()
     return out

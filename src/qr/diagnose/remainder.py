@@ -25,8 +25,8 @@ def remainder(res: dict, vehicle, cfg) -> dict:
     named, theta = res["named"], res["theta"]
     tr, te = np.flatnonzero(prep.train), np.flatnonzero(prep.test)
     s_tr, s_te = prep.s.take(tr), prep.s.take(te)
-    r_tr = prep.y[tr] - extended_prediction(prep, vehicle, named, theta, tr)
-    r_te = prep.y[te] - extended_prediction(prep, vehicle, named, theta, te)
+    r_tr = prep.y[tr] - extended_prediction(prep, vehicle, named, theta, tr, res.get("force_only", ()))
+    r_te = prep.y[te] - extended_prediction(prep, vehicle, named, theta, te, res.get("force_only", ()))
     w_te = weights(prep.sd)[te]
     l0 = float(np.nanmean(w_te * r_te**2))
 

@@ -53,7 +53,9 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
         "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
                       "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
                       "steps": [_clean(s) for s in res["selection"]["steps"]],
-                      "rejected": res["selection"].get("rejected", {})},
+                      "rejected": res["selection"].get("rejected", {}),
+                      "torque_arbitration": {k: {r: _r(v, 4) for r, v in d.items()}
+                                             for k, d in res.get("torque_arbitration", {}).items()}},
         "verdict": verdict(res),
         "config": cfg_dict,
     }
@@ -145,6 +147,12 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             cells = " | ".join("-" if abs(x) < 0.005 else f"{x:.2f}" for x in shares)
             L.append(f"| `{name}` | {cells} |")
         L.append("")
+    for name, d in doc["selection"].get("torque_arbitration", {}).items():
+        L.append(f"Roll/pitch torque cannot arbitrate `{name}`: the torque rows alone would need "
+                 f"{d['torque_rows'][0]:.3g} (the force rows {d['force_rows'][0]:.3g}), beyond any plausible "
+                 "C_T error: the measured roll/pitch torque is not the rotor map's (arm, inertia or latency of the "
+                 f"attitude channel).  `{name}` is fitted on the force rows, where it is the same term as "
+                 "`mass_error` (reported as confounded).\n")
     if doc["selection"].get("rejected"):
         L.append("Candidates rejected as unphysical on this data:\n")
         for name, why in doc["selection"]["rejected"].items():

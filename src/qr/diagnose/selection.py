@@ -32,15 +32,17 @@ class Columns:
 
     effects: list[str]
     slices: dict[str, slice]
+    # effects whose torque half is left out (see ``torque_arbitration``)
+    force_only: frozenset = frozenset()
 
     @classmethod
-    def of(cls, effects):
+    def of(cls, effects, force_only=()):
         slices, j = {}, 0
         for e in effects:
             k = len(CATALOG[e].params)
             slices[e] = slice(j, j + k)
             j += k
-        return cls(list(effects), slices)
+        return cls(list(effects), slices, frozenset(force_only) & set(effects))
 
     @property
     def size(self) -> int:
@@ -55,7 +57,45 @@ def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
     """Stacked design (N, 6, p) of all candidate effects."""
     if not cols.effects:
         return np.zeros((len(s), 6, 0))
-    return np.concatenate([CATALOG[e].design(s, vehicle) for e in cols.effects], axis=2)
+    parts = []
+    for e in cols.effects:
+        X = CATALOG[e].design(s, vehicle)
+        if e in cols.force_only:
+            X = X.copy()
+            X[:, 3:, :] = 0.0
+        parts.append(X)
+    return np.concatenate(parts, axis=2)
+
+
+# Pairs that are the same term in force (spec: gain = m/(m + dm)); only roll/pitch torque tells them apart.
+SAME_IN_FORCE = {frozenset({"thrust_gain", "mass_error"})}
+
+
+def torque_arbitration(row_stats, effects=("thrust_gain",)) -> dict:
+    """Can the roll/pitch torque rows speak for the torque half of ``effects``?
+
+    A C_T error scales force and torque alike.  When the torque rows alone put its
+    gain on the plausibility bound while the force rows keep it inside, the
+    measured roll/pitch torque is not the rotor map's torque by more than any
+    plausible C_T error (wrong arm, inertia or latency of the attitude channel):
+    those rows cannot arbitrate, and the effect is fitted on the force rows (where
+    it is the same term as ``mass_error``, reported as confounded).  Returns per
+    such effect the force-row and the (unbounded) torque-row estimates.
+    """
+    out = {}
+    if row_stats is None:
+        return out
+    f_st, t_st = row_stats
+    for e in effects:
+        if e not in t_st.cols.effects:
+            continue
+        if _at_bound(t_st, [e], e) and not _at_bound(f_st, [e], e):
+            G, h, _, _ = t_st.subset(np.arange(len(t_st.s)))
+            idx = t_st.cols.index([e])
+            free = solve(G[np.ix_(idx, idx)], h[idx])
+            neutral = np.asarray(CATALOG[e].neutral, float)
+            out[e] = {"force_rows": (fit(f_st, [e]) + neutral).tolist(), "torque_rows": (free + neutral).tolist()}
+    return out
 
 
 @dataclass
@@ -255,7 +295,7 @@ def _inconsistent(row_stats, base: list[str], effect: str, cfg: SelectionConfig)
     from ..effects import CATALOG
 
     axes = set(CATALOG[effect].axes)
-    if row_stats is None or not (axes & {0, 1, 2}) or not (axes & {3, 4, 5}):
+    if row_stats is None or effect in row_stats[0].cols.force_only or not (axes & {0, 1, 2}) or not (axes & {3, 4, 5}):
         return None
     effects = base + [effect]
     est = []
@@ -307,6 +347,9 @@ def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), ro
             sel.steps.append(step)
             break
         rivals = [c for c in pool if c != best and _r2(stats, [best], c, current) >= cfg.confound_r2]
+        # force-identical to the winner while the torque cannot arbitrate: confounded by construction
+        same = lambda a, b: frozenset({a, b}) in SAME_IN_FORCE and bool(stats.cols.force_only & {a, b})  # noqa: E731
+        rivals += [c for c in pool if c != best and c not in rivals and same(best, c)]
         # parsimony: among collinear candidates, the simplest one explaining about as much
         near = [c for c in [best] + rivals if gain[best] - gain[c] < cfg.min_gain * L]
         chosen = min(near, key=simplicity)
@@ -314,7 +357,7 @@ def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), ro
         for c in [best] + rivals:
             if c == chosen:
                 continue
-            if _r2(stats, [chosen], c, current) >= 1 - 1e-6:  # c contains chosen (thrust_gain ⊂ motor_imbalance)
+            if same(chosen, c) or _r2(stats, [chosen], c, current) >= 1 - 1e-6:  # c contains chosen, or same in force
                 confounded.append(c)
                 continue
             verdict = _separate(stats, current, chosen, c, cfg)
