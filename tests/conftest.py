@@ -1,4 +1,5 @@
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -7,6 +8,11 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("QR_DATA", ROOT.parent / "shared" / "data" / "imrclab-crazyflie"))
 VEHICLES = ROOT / "conf" / "vehicle"
+
+# A test run started in the background (`make test &`, nohup, a non-interactive shell) inherits an
+# ignored SIGINT, which Python and every child process keep; the Ctrl-C tests need it delivered.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)

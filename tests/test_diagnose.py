@@ -48,14 +48,15 @@ NULLS = [(21, NoiseConfig(position_std=0.0003, attitude_std=0.002, rotor_std=0.0
          (23, NoiseConfig(position_std=0.001, attitude_std=0.005, rotor_std=0.01, dropout=0.01))]
 
 
-def _case(tmp_path, names, seed=7, noise=None):
+def _case(tmp_path, names, seed=7, noise=None, figures=False):
+    """Synthesise, then diagnose; figures only where a test looks at them (they are a third of the time)."""
     vehicle = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
     effects = [parse_effect_spec(f"{n}:{SINGLE[n]}") for n in names]
     traj = TrajectoryConfig(low_passes="ground_effect" in names)
     write_synth(tmp_path / "s", vehicle, effects, SynthConfig(duration=90, rate=100, seed=seed,
                                                              noise=noise or NoiseConfig(), trajectory=traj))
     doc, res = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "s" / "vehicle.yaml", tmp_path / "d",
-                             log=lambda m: None, return_result=True)
+                             log=lambda m: None, return_result=True, figures=figures)
     prep = res["prep"]
     floor = rms((prep.y - total_term(effects, prep.s, vehicle))[prep.test])
     return effects, doc, floor
@@ -104,7 +105,7 @@ def test_null_flights_name_nothing(seed, noise, tmp_path):
 
 
 def test_contract_and_outputs(tmp_path):
-    effects, doc, _ = _case(tmp_path, ["linear_drag", "cg_offset"], seed=3)
+    effects, doc, _ = _case(tmp_path, ["linear_drag", "cg_offset"], seed=3, figures=True)
     out = tmp_path / "d"
     assert sorted(p.name for p in out.iterdir()) == ["diagnosis.json", "extended_vehicle.yaml", "figures",
                                                      "report.md"]
@@ -132,7 +133,7 @@ def test_extended_vehicle_feeds_back_into_a_second_diagnosis(tmp_path):
     """Diagnosing again with the extended vehicle finds nothing more (the carry-over the workflow uses)."""
     _case(tmp_path, ["wind_force"], seed=4)
     doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "d" / "extended_vehicle.yaml", tmp_path / "d2",
-                        log=lambda m: None)
+                        log=lambda m: None, figures=False)
     assert doc["effects"] == []
 
 
@@ -148,7 +149,8 @@ def test_thrust_gain_on_force_rows_when_the_torque_channel_disagrees(tmp_path):
     raw = yaml.safe_load((tmp_path / "s" / "vehicle.yaml").read_text())
     raw["inertia"] = [j / 5 for j in raw["inertia"]]
     (tmp_path / "fifth.yaml").write_text(yaml.safe_dump(raw))
-    doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "fifth.yaml", tmp_path / "d5", log=lambda m: None)
+    doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "fifth.yaml", tmp_path / "d5", log=lambda m: None,
+                        figures=False)
     arb = doc["selection"]["torque_arbitration"]["thrust_gain"]
     assert arb["force_rows"][0] == pytest.approx(1.08, abs=0.02)
     # noise in the rotor-speed regressor attenuates the torque-row slope towards 1 (errors in variables):

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from matplotlib.ticker import MaxNLocator
 
 from ..effects import CATALOG
 from ..report import figures
@@ -238,7 +239,8 @@ def make_figures(outdir: Path, res: dict, vehicle) -> dict:
             "height (m)": s.p[:, 2] - vehicle.ground_z, "thrust T (N)": T}
     for i in range(4):
         regs[f"u{i + 1}"] = s.u[:, i]
-    fig, axs = figures.subplots(6, len(regs), figsize=(2.0 * len(regs), 9), sharey="row")
+    fig, axs = figures.subplots(6, len(regs), figsize=(2.0 * len(regs), 9), sharex="col", sharey="row")
+    fig.subplots_adjust(left=0.05, right=0.99, bottom=0.06, top=0.99, wspace=0.08, hspace=0.08)
     for j, (name, x) in enumerate(regs.items()):
         for i in range(6):
             ax = axs[i, j]
@@ -246,10 +248,12 @@ def make_figures(outdir: Path, res: dict, vehicle) -> dict:
             _binned(ax, x, y_all[:, i])
             if j == 0:
                 ax.set_ylabel(AXES[i], fontsize=7)
+                ax.yaxis.set_major_locator(MaxNLocator(4))
             if i == 5:
                 ax.set_xlabel(name, fontsize=7)
+            ax.xaxis.set_major_locator(MaxNLocator(3))  # few ticks: 54 panels' tick layout is most of the cost
             ax.tick_params(labelsize=6)
-    figures.save(fig, figdir / "residual_anatomy.png")
+    figures.save(fig, figdir / "residual_anatomy.png", tight=False)
     out["Residual anatomy: nominal residual against body velocity, height, thrust and each rotor's speed"] = \
         "residual_anatomy.png"
     return out
