@@ -9,7 +9,7 @@ from test_flight_io import _flight
 HB = VEHICLES / "asctec_hummingbird.yaml"
 
 
-def _rejected(capsys, tmp_path, args, *phrases):
+def assert_rejected(capsys, tmp_path, args, *phrases):
     out = tmp_path / "diag"
     status, _, err = run_cli(["diagnose", *args, "--vehicle", HB, "--out", out], capsys)
     assert status == 2
@@ -22,19 +22,19 @@ def _rejected(capsys, tmp_path, args, *phrases):
 
 
 def test_missing_flight(tmp_path, capsys):
-    _rejected(capsys, tmp_path, [tmp_path / "nope.csv"], "does not exist", "nope.csv")
+    assert_rejected(capsys, tmp_path, [tmp_path / "nope.csv"], "does not exist", "nope.csv")
 
 
 def test_bad_column(tmp_path, capsys):
     path = tmp_path / "bad.csv"
     _flight(3000).drop(columns="qz").to_csv(path, index=False)
-    _rejected(capsys, tmp_path, [path], "missing column(s) 'qz'", "bad.csv")
+    assert_rejected(capsys, tmp_path, [path], "missing column(s) 'qz'", "bad.csv")
 
 
 def test_too_short_to_hold_out(tmp_path, capsys):
     path = tmp_path / "short.csv"
     _flight(500).to_csv(path, index=False)  # 5 s
-    _rejected(capsys, tmp_path, [path], "too short to hold out a test part", "short.csv")
+    assert_rejected(capsys, tmp_path, [path], "too short to hold out a test part", "short.csv")
 
 
 @pytest.mark.parametrize("override, phrase", [("diagnose.horizon=2", "horizon"),
@@ -42,7 +42,7 @@ def test_too_short_to_hold_out(tmp_path, capsys):
 def test_bad_override(override, phrase, tmp_path, capsys):
     path = tmp_path / "ok.csv"
     _flight(6000).to_csv(path, index=False)
-    _rejected(capsys, tmp_path, [path, override], phrase)
+    assert_rejected(capsys, tmp_path, [path, override], phrase)
 
 
 def test_rotor_speeds_in_the_wrong_unit(tmp_path, capsys):
@@ -50,4 +50,4 @@ def test_rotor_speeds_in_the_wrong_unit(tmp_path, capsys):
     df = _flight(6000)
     df[["u1", "u2", "u3", "u4"]] *= 2 * np.pi / 60
     df.to_csv(path, index=False)
-    _rejected(capsys, tmp_path, [path], "unit or coefficient error")
+    assert_rejected(capsys, tmp_path, [path], "unit or coefficient error")
