@@ -95,16 +95,23 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
                             "the nominal parameters plus the named effects")
     if track if track is not None else bool(cfg.diagnose.get("track", False)):
-        from .. import tracking
-
-        with tracking.run("diagnose", out.name, {"diagnose": dcfg_dict, "filter": doc["filter"]},
-                          inputs=flights) as run:
-            run.metrics({"nominal_loss": res["nominal_loss"], "extended_loss": res["extended_loss"],
-                         "effects_named": len(res["effects"]),
-                         "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
-                         "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"]})
-            run.tags({"qr.effects": ",".join(e["name"] for e in res["effects"]) or "none"})
-            for p in ("diagnosis.json", "report.md", "extended_vehicle.yaml"):
-                run.artifact(out / p)
+        track_diagnosis(out.name, doc, flights, out, {"nominal_loss": res["nominal_loss"],
+                                                      "extended_loss": res["extended_loss"]})
     say(doc["verdict"])
     return (doc, res) if return_result else doc
+
+
+def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None) -> None:
+    """One MLflow run (experiment ``qr-diagnose``) for a written diagnosis in ``outdir``."""
+    from .. import tracking
+
+    outdir = Path(outdir)
+    with tracking.run("diagnose", name, {"diagnose": doc["config"], "filter": doc.get("filter", {})},
+                      inputs=inputs) as run:
+        run.metrics({**(metrics or {}), "effects_named": len(doc["effects"]),
+                     "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
+                     "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"]})
+        run.tags({"qr.effects": ",".join(e["name"] for e in doc["effects"]) or "none"})
+        for p in ("diagnosis.json", "report.md", "extended_vehicle.yaml"):
+            if (outdir / p).exists():
+                run.artifact(outdir / p)

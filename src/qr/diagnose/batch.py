@@ -17,7 +17,7 @@ import yaml
 from ..atomic import atomic_dir
 from ..report.tables import write_table
 from ..vehicle import load_vehicle, save_vehicle
-from . import run_diagnosis
+from . import run_diagnosis, track_diagnosis
 
 
 def _reports(nis_files):
@@ -38,7 +38,7 @@ def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=()) -> 
             name = Path(f).stem
             doc = run_diagnosis([f], vehicle, tmp / name, overrides, track=False, reports=[rep], figures=False,
                                 log=lambda m: None)
-            _track(f"{Path(out_dir).parent.name}/{name}", doc, [f], tmp / name)
+            track_diagnosis(f"{Path(out_dir).parent.name}/{name}", doc, [f], tmp / name)
             rows.append({
                 "flight": name,
                 "effects": ", ".join(e["name"] for e in doc["effects"]) or "-",
@@ -50,17 +50,6 @@ def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=()) -> 
     df = pd.DataFrame(rows)
     write_table(df, table, title=f"Per-flight diagnoses ({Path(out_dir).parent.name})")
     return df
-
-
-def _track(name, doc, inputs, outdir) -> None:
-    from .. import tracking
-
-    with tracking.run("diagnose", name, {"diagnose": doc["config"]}, inputs=inputs) as run:
-        run.metrics({"effects_named": len(doc["effects"]),
-                     "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
-                     "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"]})
-        run.tags({"qr.effects": ",".join(e["name"] for e in doc["effects"]) or "none"})
-        run.artifact(Path(outdir) / "diagnosis.json")
 
 
 def carry_over(extended_vehicle, base_vehicle, out) -> None:
