@@ -58,6 +58,14 @@ def diagnosis_vehicle(wildcards):
     return vehicle_file(wildcards.set)
 
 
+DIAG_CHECK = DIAG.get("check") if (DIAG.get("check") or {}).get("set") in SETS else None
+
+
+def check_sets():
+    """Name -> diagnosis directory of the cross-check (none when its set is not run)."""
+    return {f"{DIAG_CHECK['set']} (check)": f"results/diagnosis/{DIAG_CHECK['set']}/check"} if DIAG_CHECK else {}
+
+
 LEARNED_VEHICLE = SETS[DIAG_FIRST]["vehicle"] if DIAG_FIRST in SETS else "crazyflie21_brushless"
 
 

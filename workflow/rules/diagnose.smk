@@ -1,6 +1,7 @@
 # Diagnose: each measured flight alone, each flight set together, and the engineer's chain
 # (the no-payload set first; its extended vehicle, with the payload frame's mass, is the
-# nominal model of the payload set).  Outputs under results/diagnosis/ and results/tables/.
+# nominal model of the payload set) with its cross-check (diagnose.check in conf/workflow.yaml).
+# Outputs under results/diagnosis/ and results/tables/.
 
 
 rule diagnose_set:
@@ -58,9 +59,29 @@ rule carry_over:
         "../scripts/carry_over.py"
 
 
+rule diagnose_check:
+    input:
+        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
+        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        vehicle=lambda wc: f"conf/vehicle/{DIAG_CHECK['vehicle']}.yaml",
+    output:
+        directory("results/diagnosis/{set}/check"),
+    log:
+        "results/logs/diagnose/{set}_check.log",
+    benchmark:
+        "results/benchmarks/diagnose/{set}_check.tsv"
+    params:
+        overrides=lambda wc: list(DIAG.get("overrides", [])) + list(DIAG_CHECK.get("overrides", [])),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/diagnose_set.py"
+
+
 rule diagnosis_summary:
     input:
         sets=expand(rules.diagnose_set.output[0], set=list(SETS)),
+        checks=list(check_sets().values()),
         each=expand(rules.diagnose_each.output.table, set=list(SETS)),
     output:
         table="results/tables/diagnosis_summary.csv",
@@ -69,7 +90,7 @@ rule diagnosis_summary:
     benchmark:
         "results/benchmarks/diagnose/summary.tsv"
     params:
-        names=list(SETS),
+        names=list(SETS) + list(check_sets()),
     conda:
         "../envs/qr.yaml"
     script:

@@ -5,4 +5,5 @@ from qr.diagnose.batch import summary
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
-    summary(dict(zip(snakemake.params.names, snakemake.input.sets)), snakemake.output.table)
+    summary(dict(zip(snakemake.params.names, list(snakemake.input.sets) + list(snakemake.input.checks))),
+            snakemake.output.table)

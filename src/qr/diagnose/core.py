@@ -220,19 +220,24 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     prep = prepare(states_list, vehicle, cfg)
     fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
-    # may the roll/pitch torque arbitrate C_T?  (a one-column check before the full statistics)
-    arb = {}
-    if "thrust_gain" in candidates:
-        tg = Columns.of(["thrust_gain"])
-        arb = torque_arbitration((block_stats(fitprep, vehicle, tg, rows=[0, 1, 2]),
-                                  block_stats(fitprep, vehicle, tg, rows=[3, 4, 5])))
-    force_only = frozenset(arb)
-    cols = Columns.of(candidates, force_only)
     step("normal equations")
+    cols = Columns.of(candidates)
     stats = block_stats(fitprep, vehicle, cols)
     row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]), block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
     step("selection")
     sel = forward_select(stats, cfg.selection, row_stats=row_stats)
+    # May the roll/pitch torque arbitrate C_T?  Judged given what the data do contain (the first
+    # selection's effects): if the torque rows still put thrust_gain on its bound, select again with
+    # thrust_gain fitted on the force rows alone.
+    arb = torque_arbitration(row_stats, base=[e for e in sel.named if e != "thrust_gain"]) \
+        if "thrust_gain" in candidates and "thrust_gain" not in sel.named else {}
+    force_only = frozenset(arb)
+    if force_only:
+        cols = Columns.of(candidates, force_only)
+        stats = block_stats(fitprep, vehicle, cols)
+        row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]),
+                     block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
+        sel = forward_select(stats, cfg.selection, row_stats=row_stats)
     named = sel.named
     theta = fit(stats, named) if named else np.zeros(0)
     step("bootstrap")

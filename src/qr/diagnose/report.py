@@ -55,7 +55,7 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
                       "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
                       "steps": [_clean(s) for s in res["selection"]["steps"]],
                       "rejected": res["selection"].get("rejected", {}),
-                      "torque_arbitration": {k: {r: _r(v, 4) for r, v in d.items()}
+                      "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in d.items()}
                                              for k, d in res.get("torque_arbitration", {}).items()}},
         "verdict": verdict(res),
         "config": cfg_dict,
@@ -81,8 +81,11 @@ def verdict(res: dict) -> str:
         rem = res.get("remainder", {})
         tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
                 if rem.get("structure_remains") else "")
-        return (f"Nothing named: the nominal model explains this flight up to noise (weighted residual "
-                f"{ratio:.2f} x the noise floor's variance on held-out data).{tail}")
+        # "up to noise" only when the residual is at the noise floor's level (weighted loss ~ 1)
+        fit = ("the nominal model explains this flight up to noise" if ratio < 2 else
+               "no candidate effect explains the residual, which is well above noise")
+        return (f"Nothing named: {fit} (weighted residual {ratio:.2f} x the noise floor's variance on "
+                f"held-out data).{tail}")
     names = ", ".join(e["name"] for e in res["effects"])
     gain = 1 - res["extended_loss"] / res["nominal_loss"]
     return (f"Named {names}; the extended model removes {100 * gain:.0f} % of the nominal model's weighted "
@@ -127,16 +130,23 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
         L.append("None: no catalog effect improves the cross-validated fit by more than "
                  f"{100 * doc['config']['selection']['min_gain']:.0f} % of the residual.\n")
     L.append("Selection path (cross-validated loss in noise-variance units):\n")
-    L.append("| step | best candidate | gain | folds improved | decision |")
-    L.append("|---:|---|---:|---:|---|")
+    L.append("| step | best candidate | gain | folds improved | median fold | decision |")
+    L.append("|---:|---|---:|---:|---:|---|")
     for i, s in enumerate(doc["selection"]["steps"]):
         if "dropped" in s:
-            L.append(f"| {i + 1} | {s['dropped']} | - | - | dropped (redundant) |")
+            L.append(f"| {i + 1} | {s['dropped']} | - | - | - | dropped (redundant) |")
             continue
-        dec = f"named `{s['named']}`" if s.get("accepted") else "stop"
+        dec = (f"named `{s['named']}`" if s.get("accepted") else
+               f"not named: collinear with {', '.join(s['collinear_with'])}" if s.get("collinear_with") else "stop")
+        if s.get("replaced"):
+            dec += f" (replacing `{s['replaced']}`: the same term, fitted better)"
+        if s.get("nested_in"):
+            dec += f" (simpler, nested in `{s['nested_in']}`, which stays a candidate)"
         if s.get("confounded"):
             dec += f" (confounded: {', '.join(s['confounded'])})"
-        L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {dec} |")
+        med = f"{100 * float(np.median(s['fold_gains'])):.1f} %" if s.get("fold_gains") else "-"
+        L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {med} "
+                 f"| {dec} |")
     L.append("")
     if res.get("anatomy"):
         L.append("Residual anatomy: share of each axis's held-out residual (above the noise floor) that each "
@@ -149,13 +159,15 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             L.append(f"| `{name}` | {cells} |")
         L.append("")
     for name, d in doc["selection"].get("torque_arbitration", {}).items():
-        L.append(f"Roll/pitch torque cannot arbitrate `{name}`: the torque rows alone would need "
-                 f"{d['torque_rows'][0]:.3g} (the force rows {d['force_rows'][0]:.3g}), beyond any plausible "
-                 "C_T error: the measured roll/pitch torque is not the rotor map's (arm, inertia or latency of the "
-                 f"attitude channel).  `{name}` is fitted on the force rows, where it is the same term as "
+        given = ", ".join(f"`{e}`" for e in d.get("given", [])) or "no other effect"
+        L.append(f"Roll/pitch torque cannot arbitrate `{name}`: given {given}, the torque rows would need "
+                 f"{d['torque_rows'][0]:.3g} (the force rows alone {d['force_rows'][0]:.3g}), beyond any plausible "
+                 "C_T error: the measured roll/pitch torque is not the rotor map's (inertia, latency or smoothing "
+                 f"of the attitude channel).  `{name}` is fitted on the force rows, where it is the same term as "
                  "`mass_error` (reported as confounded).\n")
     if doc["selection"].get("rejected"):
-        L.append("Candidates rejected as unphysical on this data:\n")
+        L.append("Candidates not named on this data (unphysical, self-contradicting, or collinear with a "
+                 "named effect):\n")
         for name, why in doc["selection"]["rejected"].items():
             L.append(f"- `{name}`: {why}.")
         L.append("")

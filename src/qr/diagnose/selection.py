@@ -9,12 +9,19 @@ residual axes by the inverse noise variance, so the loss is in units of the
 noise floor (≈ 1 when only noise is left).
 
 Selection: start from the nominal model; add the effect whose cross-validated
-loss gain is largest while that gain exceeds ``min_gain`` of the current loss
-and holds in most folds (stability); effects nearly as good as the winner whose
-fitted terms are collinear with it are *confounded*: the simplest of them is
-named, the others reported in ``confounded_with`` and never named.  A backward
-pass drops effects later ones made redundant.  Parameters are refit on all
-training blocks; standard errors come from a block bootstrap.
+loss gain is largest among the stable ones (it helps in most folds, and by
+``min_gain`` in the median fold: one fold cannot carry it) while that gain
+exceeds ``min_gain`` of the current loss.  A simpler candidate nested in the winner (the
+winner's columns reproduce its term) with most of the winner's gain is tried
+first; the winner's extra parameters must then earn their place on what is
+left.  Effects nearly as good as the chosen one whose fitted terms are
+collinear with it are *confounded*: the simplest of them is named, the others
+reported in ``confounded_with`` and never named.  Candidates that sit on a
+plausibility bound or whose force and torque rows disagree are set aside, and
+judged again after each named effect (an unmodelled effect in one channel can
+make another look inconsistent).  A backward pass drops effects later ones made
+redundant.  Parameters are refit on all training blocks; standard errors come
+from a block bootstrap.
 """
 
 from __future__ import annotations
@@ -71,30 +78,33 @@ def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
 SAME_IN_FORCE = {frozenset({"thrust_gain", "mass_error"})}
 
 
-def torque_arbitration(row_stats, effects=("thrust_gain",)) -> dict:
+def torque_arbitration(row_stats, base=(), effects=("thrust_gain",)) -> dict:
     """Can the roll/pitch torque rows speak for the torque half of ``effects``?
 
-    A C_T error scales force and torque alike.  When the torque rows alone put its
-    gain on the plausibility bound while the force rows keep it inside, the
-    measured roll/pitch torque is not the rotor map's torque by more than any
-    plausible C_T error (wrong arm, inertia or latency of the attitude channel):
-    those rows cannot arbitrate, and the effect is fitted on the force rows (where
-    it is the same term as ``mass_error``, reported as confounded).  Returns per
-    such effect the force-row and the (unbounded) torque-row estimates.
+    A C_T error scales force and torque alike.  When the torque rows (given the
+    torque effects in ``base``, those the data contain) put its gain on the plausibility bound while
+    the force rows keep it inside, the measured roll/pitch torque is not the rotor
+    map's torque by more than any plausible C_T error (wrong inertia, latency or
+    smoothing of the attitude channel): those rows cannot arbitrate, and the effect
+    is fitted on the force rows (where it is the same term as ``mass_error``,
+    reported as confounded).  Returns per such effect the force-row and the
+    (unbounded) torque-row estimates.
     """
     out = {}
     if row_stats is None:
         return out
     f_st, t_st = row_stats
+    base = [b for b in base if set(CATALOG[b].axes) & {3, 4, 5}]  # what else acts on the torque rows
     for e in effects:
         if e not in t_st.cols.effects:
             continue
-        if _at_bound(t_st, [e], e) and not _at_bound(f_st, [e], e):
+        if _at_bound(t_st, base + [e], e) and not _at_bound(f_st, [e], e):
             G, h, _, _ = t_st.subset(np.arange(len(t_st.s)))
-            idx = t_st.cols.index([e])
-            free = solve(G[np.ix_(idx, idx)], h[idx])
+            idx = t_st.cols.index(base + [e])
+            free = solve(G[np.ix_(idx, idx)], h[idx])[-len(CATALOG[e].params):]
             neutral = np.asarray(CATALOG[e].neutral, float)
-            out[e] = {"force_rows": (fit(f_st, [e]) + neutral).tolist(), "torque_rows": (free + neutral).tolist()}
+            out[e] = {"force_rows": (fit(f_st, [e]) + neutral).tolist(), "torque_rows": (free + neutral).tolist(),
+                      "given": base}
     return out
 
 
@@ -176,10 +186,13 @@ def loss(G, h, s, n, theta) -> float:
 class SelectionConfig:
     folds: int = 5
     min_gain: float = 0.01  # accept an effect only if it cuts the CV loss by this fraction of the current loss
-    min_fold_share: float = 0.8  # ... and helps in at least this share of the folds
+    min_fold_share: float = 0.8  # ... and helps in at least this share of the folds (the median fold by min_gain)
     confound_r2: float = 0.9  # a rival whose columns reproduce the winner's fitted term this well ...
     t_separate: float = 3.0  # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
     separate_bootstrap: int = 100
+    vif_max: float = 10.0  # a candidate inflating a named effect's parameter variance this much, and moving
+    #                        it by > consistency_rel, trades off with it (collinear on this data)
+    nested_share: float = 0.9  # a simpler candidate nested in the winner, with this share of its gain, leads
     consistency_t: float = 4.0  # force-only and torque-only fits of one effect may differ by this many s.e. ...
     consistency_rel: float = 0.3  # ... or by this fraction, before the effect is rejected as inconsistent
     max_effects: int = 6
@@ -315,6 +328,44 @@ def _inconsistent(row_stats, base: list[str], effect: str, cfg: SelectionConfig)
     return None
 
 
+def inflation(stats: BlockStats, current: list[str], new: str) -> dict:
+    """Variance inflation of each named effect's parameters when ``new`` joins them: the largest
+    ratio of ``diag((XᵀWX)⁻¹)`` with and without ``new``'s columns (1 = orthogonal to them)."""
+    if not current:
+        return {}
+    G, _, _, _ = stats.subset(np.arange(len(stats.s)))
+    i0, i1 = stats.cols.index(current), stats.cols.index(current + [new])
+    ridge = lambda A: A + 1e-12 * np.trace(A) / len(A) * np.eye(len(A))  # noqa: E731
+    v0 = np.diag(np.linalg.inv(ridge(G[np.ix_(i0, i0)])))
+    v1 = np.diag(np.linalg.inv(ridge(G[np.ix_(i1, i1)])))[: i0.size]
+    ratio = v1 / np.maximum(v0, 1e-300)
+    cols = Columns.of(current)
+    return {e: float(ratio[cols.slices[e]].max()) for e in current}
+
+
+def trade_off(stats: BlockStats, current: list[str], new: str, cfg: SelectionConfig) -> list[str]:
+    """Named effects that ``new`` trades off with: their parameter variance grows > ``vif_max``-fold
+    and their estimates move by more than ``consistency_rel`` of their size when ``new`` joins.
+    (Collinearity alone is not enough: with enough data both are still pinned down.)"""
+    inflated = [e for e, v in inflation(stats, current, new).items() if v > cfg.vif_max]
+    if not inflated:
+        return []
+    before, after = fit(stats, current), fit(stats, current + [new])
+    c0, c1 = Columns.of(current), Columns.of(current + [new])
+    out = []
+    for e in inflated:
+        b, a = before[c0.slices[e]], after[c1.slices[e]]
+        if np.any(np.abs(a - b) > cfg.consistency_rel * np.maximum(np.abs(b), 1e-12)):
+            out.append(e)
+    return out
+
+
+def stable(trial: np.ndarray, cur: np.ndarray, cfg: SelectionConfig) -> bool:
+    """Per-fold validation losses with (``trial``) and without (``cur``) a candidate: does it help in
+    most folds, and by ``min_gain`` in the median fold (not one fold carrying the average)?"""
+    return bool(np.mean(trial < cur) >= cfg.min_fold_share and np.median((cur - trial) / cur) >= cfg.min_gain)
+
+
 def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), row_stats=None) -> Selection:
     """``row_stats``: (force-rows-only, torque-rows-only) statistics for the consistency check."""
     cv = CrossValidator(stats, cfg.folds)
@@ -326,26 +377,46 @@ def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), ro
     sel.rejected = {}
     while pool and len(current) < cfg.max_effects:
         L = float(cur @ wts / wts.sum())
-        # physically implausible or self-contradicting candidates are never named
-        for c in list(pool):
+        # physically implausible or self-contradicting candidates are not named now; judged again
+        # once more effects are named (an unmodelled effect in one channel can make another look
+        # inconsistent: blade flapping's torque hides a C_T error's torque)
+        usable = []
+        for c in pool:
             why = ("a parameter sits on its plausibility bound"
                    if any(_at_bound(stats, current + [c], e) for e in current + [c])
                    else _inconsistent(row_stats, current, c, cfg))
             if why:
                 sel.rejected[c] = why
-                pool.remove(c)
+            else:
+                sel.rejected.pop(c, None)
+                usable.append(c)
+        pool_all, pool = pool, usable
         if not pool:
             break
         trial = {c: cv.losses(current + [c]) for c in pool}
         gain = {c: L - float(v @ wts / wts.sum()) for c, v in trial.items()}
-        best = max(gain, key=gain.get)
+        # the largest gain among the stable candidates (an unstable leader does not block a stable one)
+        steady = [c for c in pool if stable(trial[c], cur, cfg)]
+        best = max(steady or pool, key=gain.get)
         share = float(np.mean(trial[best] < cur))
         step = {"candidate": best, "gain": gain[best] / L, "fold_share": share, "loss": L,
+                "fold_gains": ((cur - trial[best]) / cur).round(4).tolist(),
                 "gains": {c: g / L for c, g in sorted(gain.items(), key=lambda kv: -kv[1])}}
-        if gain[best] < cfg.min_gain * L or share < cfg.min_fold_share:
+        if gain[best] < cfg.min_gain * L or not stable(trial[best], cur, cfg):
             step["accepted"] = False
             sel.steps.append(step)
             break
+        # nested parsimony: a simpler candidate whose term the winner's columns reproduce, with most of
+        # the winner's gain, leads; the winner's extra parameters then have to earn their place on
+        # what is left (it stays a candidate).  E.g. a C_T error (thrust along body z, ∝ T) before a
+        # constant body-frame force whose x/y parts are something else.
+        nested = [c for c in pool if c != best and simplicity(c) < simplicity(best)
+                  and gain[c] >= cfg.nested_share * gain[best] and stable(trial[c], cur, cfg)
+                  and _r2(stats, [c], best, current) >= cfg.confound_r2]
+        if nested:
+            winner, best = best, max(nested, key=lambda c: (gain[c], [-x for x in simplicity(c)]))
+            step.update(candidate=best, gain=gain[best] / L, fold_share=float(np.mean(trial[best] < cur)),
+                        fold_gains=((cur - trial[best]) / cur).round(4).tolist(), nested_in=winner)
         rivals = [c for c in pool if c != best and _r2(stats, [best], c, current) >= cfg.confound_r2]
         # force-identical to the winner while the torque cannot arbitrate: confounded by construction
         same = lambda a, b: frozenset({a, b}) in SAME_IN_FORCE and bool(stats.cols.force_only & {a, b})  # noqa: E731
@@ -365,12 +436,32 @@ def forward_select(stats: BlockStats, cfg: SelectionConfig, must_not_name=(), ro
                 chosen = c
             elif verdict == "confounded":
                 confounded.append(c)
-        group = [chosen] + confounded
+        # collinear with an effect already named: fitted together, the two trade off along a direction
+        # the data barely constrain (a C_T error against a constant body-z force on one short flight)
+        traded = trade_off(stats, current, chosen, cfg)
+        if traded:
+            # the same term in another form: it replaces the named one if no richer and better on its own
+            swap = next((e for e in traded if simplicity(chosen) <= simplicity(e)
+                         and float(cv.losses([x for x in current if x != e] + [chosen]) @ wts / wts.sum()) < L), None)
+            if swap is None:
+                step.update(accepted=False, candidate=chosen, collinear_with=traded)
+                sel.steps.append(step)
+                for e in traded:
+                    sel.confounded[e] = sel.confounded.get(e, []) + [chosen]
+                sel.rejected[chosen] = (f"collinear with {', '.join(traded)} on this data (fitted together they "
+                                        "trade off: its parameters move far and their variance grows "
+                                        f"> {cfg.vif_max:g}-fold)")
+                pool = [c for c in pool_all if c != chosen]
+                continue
+            current.remove(swap)  # the data prefer the new form (it leaves the pool, as a named effect would)
+            sel.confounded.pop(swap, None)
+            step["replaced"] = swap
+        group = [chosen] + confounded + ([step["replaced"]] if "replaced" in step else [])
         step.update(accepted=True, named=chosen, confounded=confounded)
         sel.steps.append(step)
         current.append(chosen)
         sel.confounded[chosen] = confounded
-        pool = [c for c in pool if c not in group]
+        pool = [c for c in pool_all if c not in group]
         cur = cv.losses(current)
     # backward pass: drop what later effects made redundant
     changed = True
