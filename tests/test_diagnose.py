@@ -51,13 +51,19 @@ NULLS = [(21, NoiseConfig(position_std=0.0003, attitude_std=0.002, rotor_std=0.0
          (23, NoiseConfig(position_std=0.001, attitude_std=0.005, rotor_std=0.01, dropout=0.01))]
 
 
-def _case(tmp_path, names, seed=7, noise=None, figures=False):
-    """Synthesise, then diagnose; figures only where a test looks at them (they are a third of the time)."""
+def _synth(tmp_path, names, seed=7, noise=None):
+    """A 90 s, 100 Hz Hummingbird flight with ``names`` hidden, in ``tmp_path / "s"``; its effects."""
     vehicle = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
     effects = [parse_effect_spec(n if ":" in n else f"{n}:{SINGLE[n]}") for n in names]
     traj = TrajectoryConfig(low_passes=any(e["name"] == "ground_effect" for e in effects))
     write_synth(tmp_path / "s", vehicle, effects, SynthConfig(duration=90, rate=100, seed=seed,
                                                              noise=noise or NoiseConfig(), trajectory=traj))
+    return vehicle, effects
+
+
+def _case(tmp_path, names, seed=7, noise=None, figures=False):
+    """Synthesise, then diagnose; figures only where a test looks at them (they are a third of the time)."""
+    vehicle, effects = _synth(tmp_path, names, seed, noise)
     doc, res = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "s" / "vehicle.yaml", tmp_path / "d",
                              log=lambda m: None, return_result=True, figures=figures)
     prep = res["prep"]
@@ -148,7 +154,7 @@ def test_thrust_gain_on_force_rows_when_the_torque_channel_disagrees(tmp_path):
     rows cannot arbitrate C_T (they would need 0.216, beyond the 0.5 bound): thrust_gain
     must be fitted on the force rows (1.08), named once, with mass_error confounded.
     """
-    _case(tmp_path, ["thrust_gain"], seed=5)
+    _synth(tmp_path, ["thrust_gain"], seed=5)
     raw = yaml.safe_load((tmp_path / "s" / "vehicle.yaml").read_text())
     raw["inertia"] = [j / 5 for j in raw["inertia"]]
     (tmp_path / "fifth.yaml").write_text(yaml.safe_dump(raw))

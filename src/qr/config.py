@@ -6,6 +6,7 @@ library code and ``qr diagnose`` compose the same tree with overrides.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -14,7 +15,18 @@ CONF_DIR = str(Path(os.environ.get("QR_CONF", ROOT / "conf")).resolve())
 
 
 def compose(overrides=()):
-    """The resolved config with Hydra-style overrides (``['model=gpr', 'seed=3']``)."""
+    """The resolved config with Hydra-style overrides (``['model=gpr', 'seed=3']``).
+
+    Composed once per set of overrides and process (Hydra takes ~0.6 s; a workflow job diagnoses
+    dozens of flights with the same overrides); each caller gets its own copy.
+    """
+    import copy
+
+    return copy.deepcopy(_compose_once(tuple(overrides)))
+
+
+@functools.lru_cache(maxsize=32)
+def _compose_once(overrides: tuple):
     from hydra import compose as _compose
     from hydra import initialize_config_dir
 
