@@ -221,9 +221,12 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
     step("normal equations")
-    cols = Columns.of(candidates)
-    stats = block_stats(fitprep, vehicle, cols)
-    row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]), block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
+
+    def all_rows_force_rows_torque_rows(cols):
+        return block_stats(fitprep, vehicle, cols), (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]),
+                                                     block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
+
+    stats, row_stats = all_rows_force_rows_torque_rows(Columns.of(candidates))
     step("selection")
     sel = forward_select(stats, cfg.selection, row_stats=row_stats)
     # May the roll/pitch torque arbitrate C_T?  Judged given what the data do contain (the first
@@ -233,10 +236,7 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         if "thrust_gain" in candidates and "thrust_gain" not in sel.named else {}
     force_only = frozenset(arb)
     if force_only:
-        cols = Columns.of(candidates, force_only)
-        stats = block_stats(fitprep, vehicle, cols)
-        row_stats = (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]),
-                     block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
+        stats, row_stats = all_rows_force_rows_torque_rows(Columns.of(candidates, force_only))
         sel = forward_select(stats, cfg.selection, row_stats=row_stats)
     named = sel.named
     theta = fit(stats, named) if named else np.zeros(0)
