@@ -13,6 +13,10 @@ when its owner is certainly gone (same host, pid not running or a zombie):
   recognises as stale: :func:`snakemake_guard`, called when the workflow is
   parsed, removes it when every Snakemake process that could hold it is gone.
 
+A SIGTERM can be caught: :func:`sigterm_raises` turns it into an exception
+(:class:`Terminated`) so clean-up code runs; :func:`signals_held` defers
+SIGINT/SIGTERM while a few steps must not be cut short.
+
 What another host left is never touched (its processes cannot be checked from
 here): ``snakemake --unlock`` for the lock, and
 ``mlflow.MlflowClient().set_terminated(run_id, "KILLED")`` for a run, are the
@@ -22,12 +26,16 @@ manual ways out for that case.
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import re
 import shutil
+import signal
 import socket
 import sys
+import threading
 from pathlib import Path
+from typing import Iterator
 
 _HOST = None
 
@@ -92,6 +100,75 @@ def alive(pid, start: str | None = None, on_host: str | None = None) -> bool:
     return True
 
 
+# ---- signals: SIGTERM as an exception, signals held back -----------------------------------------
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised as an exception (:func:`sigterm_raises`) so that clean-up code runs."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated(f"terminated by signal {signum}")
+
+
+def _redeliver_swallowed(unraisable) -> None:
+    """``sys.unraisablehook`` within :func:`sigterm_raises`.  An interrupt that lands in a finalizer or a weakref
+    callback (SQLAlchemy has many) is printed and dropped by Python, and the job would go on as if
+    never interrupted; the signal is sent again a moment later (from a timer thread: sent from here it
+    would be raised here again), until it lands outside a finalizer."""
+    exc = unraisable.exc_type
+    if exc is not None and issubclass(exc, KeyboardInterrupt):
+        sig = signal.SIGTERM if issubclass(exc, Terminated) else signal.SIGINT
+        timer = threading.Timer(0.1, os.kill, (os.getpid(), sig))
+        timer.daemon = True
+        timer.start()
+    (_previous_hook or sys.__unraisablehook__)(unraisable)
+
+
+_previous_hook = None
+
+
+@contextlib.contextmanager
+def sigterm_raises() -> Iterator[None]:
+    """Within, SIGTERM raises :class:`Terminated` in the main thread instead of ending the process on
+    the spot, so clean-up code runs (a tracked run's status is written, temporaries are removed).
+    Only the default action is replaced: a handler installed by someone else (submitit's, say) is
+    left alone."""
+    global _previous_hook
+    installed = hooked = False
+    if threading.current_thread() is threading.main_thread():
+        try:
+            if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+                signal.signal(signal.SIGTERM, _raise_terminated)
+                installed = True
+        except (ValueError, OSError):
+            pass
+        if sys.unraisablehook is not _redeliver_swallowed:
+            _previous_hook, sys.unraisablehook = sys.unraisablehook, _redeliver_swallowed
+            hooked = True
+    try:
+        yield
+    finally:
+        if installed and signal.getsignal(signal.SIGTERM) is _raise_terminated:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        if hooked and sys.unraisablehook is _redeliver_swallowed:
+            sys.unraisablehook, _previous_hook = _previous_hook, None
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM wait (and are delivered afterwards) while something must not be cut short
+    (a run's final status, the moves that put an output in place)."""
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    except (AttributeError, ValueError, OSError):
+        old = None
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 # ---- write-then-rename temporaries ---------------------------------------------------------
 
 TEMP_TAG = "qrtmp"
@@ -104,8 +181,17 @@ def temp_prefix(name: str) -> str:
     return f".{name}.{TEMP_TAG}-{me['host']}-{me['pid']}-{me['start']}."
 
 
-def remove_orphan_temporaries(root) -> list[Path]:
-    """Remove temporaries under ``root`` whose writer (on this host) is gone; returns what was removed."""
+def is_temporary(name: str) -> bool:
+    """Whether ``name`` is a write-then-rename temporary of :mod:`qr.atomic` (any writer)."""
+    return _TEMP_RE.match(name) is not None
+
+
+def remove_orphan_temporaries(root, recursive: bool = True) -> list[Path]:
+    """Remove temporaries under ``root`` whose writer (on this host) is gone; returns what was removed.
+
+    ``recursive=False``: only ``root``'s own entries (what a command checks beside and inside its
+    ``--out``, cheap even when ``root`` is a large folder).
+    """
     removed = []
     root = Path(root)
     if not root.is_dir():
@@ -123,6 +209,8 @@ def remove_orphan_temporaries(root) -> list[Path]:
             else:
                 p.unlink(missing_ok=True)
             removed.append(p)
+        if not recursive:
+            break
     return removed
 
 

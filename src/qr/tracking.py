@@ -10,8 +10,8 @@ concurrent jobs neither lose nor corrupt records.
 
 Faults.  A run ends FINISHED, FAILED (an exception) or KILLED (SIGINT, or
 SIGTERM: while a run is open SIGTERM raises :class:`Terminated`, a
-``KeyboardInterrupt``, unless someone else handles SIGTERM; the final status is
-written with both signals held back).  SIGKILL cannot be caught: every run is
+``KeyboardInterrupt``, unless someone else handles SIGTERM (:func:`qr.procs.sigterm_raises`);
+the final status is written with both signals held back).  SIGKILL cannot be caught: every run is
 tagged with its process (``qr.host``, ``qr.pid``, ``qr.pid_start``), and the
 first run a process opens marks runs left RUNNING by a process of this host
 that is gone as KILLED (:func:`reap_stale`, tag ``qr.killed``).
@@ -26,13 +26,12 @@ import json
 import logging
 import os
 import random
-import signal
 import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 from typing import Iterable, Iterator
+
+from .procs import Terminated  # noqa: F401  (SIGTERM as an exception: qr.procs.sigterm_raises)
 
 _RETRIES = 12
 _reaped = False
@@ -190,71 +189,6 @@ def _finite(v) -> bool:
         return False
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM arrived while a tracked run was open (the run ends KILLED, then this propagates)."""
-
-
-def _raise_terminated(signum, frame):
-    raise Terminated(f"terminated by signal {signum}")
-
-
-def _redeliver_swallowed(unraisable) -> None:
-    """``sys.unraisablehook`` while a run is open.  An interrupt that lands in a finalizer or a weakref
-    callback (SQLAlchemy has many) is printed and dropped by Python, and the job would go on as if
-    never interrupted; the signal is sent again a moment later (from a timer thread: sent from here it
-    would be raised here again), until it lands outside a finalizer."""
-    exc = unraisable.exc_type
-    if exc is not None and issubclass(exc, KeyboardInterrupt):
-        sig = signal.SIGTERM if issubclass(exc, Terminated) else signal.SIGINT
-        timer = threading.Timer(0.1, os.kill, (os.getpid(), sig))
-        timer.daemon = True
-        timer.start()
-    (_previous_hook or sys.__unraisablehook__)(unraisable)
-
-
-_previous_hook = None
-
-
-@contextlib.contextmanager
-def _sigterm_raises() -> Iterator[None]:
-    """While a run is open, SIGTERM raises :class:`Terminated` in the main thread instead of ending
-    the process on the spot, so the run's status can be written.  Only the default action is
-    replaced: a handler installed by someone else (submitit's, say) is left alone."""
-    global _previous_hook
-    installed = hooked = False
-    if threading.current_thread() is threading.main_thread():
-        try:
-            if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
-                signal.signal(signal.SIGTERM, _raise_terminated)
-                installed = True
-        except (ValueError, OSError):
-            pass
-        if sys.unraisablehook is not _redeliver_swallowed:
-            _previous_hook, sys.unraisablehook = sys.unraisablehook, _redeliver_swallowed
-            hooked = True
-    try:
-        yield
-    finally:
-        if installed and signal.getsignal(signal.SIGTERM) is _raise_terminated:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        if hooked and sys.unraisablehook is _redeliver_swallowed:
-            sys.unraisablehook, _previous_hook = _previous_hook, None
-
-
-@contextlib.contextmanager
-def _signals_held() -> Iterator[None]:
-    """SIGINT and SIGTERM wait (and are delivered afterwards) while a run's final status is written."""
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    except (AttributeError, ValueError, OSError):
-        old = None
-    try:
-        yield
-    finally:
-        if old is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
 def reap_stale(client=None) -> list[str]:
     """Mark runs left RUNNING by a process of this host that is gone (SIGKILL, crash) as KILLED.
 
@@ -332,7 +266,7 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
     if parent is not None and not isinstance(parent, _NullRun):
         all_tags["mlflow.parentRunId"] = parent.id
     all_tags.update(tags or {})
-    with _sigterm_raises():
+    with procs.sigterm_raises():
         r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
         handle = Run(client, r.info.run_id)
         status = "FAILED"
@@ -345,7 +279,7 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
             status = "KILLED"
             raise
         finally:
-            with _signals_held():
+            with procs.signals_held():
                 _retry(client.set_terminated, handle.id, status)
 
 
