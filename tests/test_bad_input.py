@@ -14,6 +14,7 @@ HB = VEHICLES / "asctec_hummingbird.yaml"
 
 def assert_rejected(capsys, tmp_path, args, *phrases):
     out = tmp_path / "out" / "flight.csv"
+    out.parent.mkdir(exist_ok=True)  # the folder an output goes in must exist (tests/test_output_safety.py)
     status, _, err = run_cli([*args, "--out", out], capsys)
     assert status == 2
     lines = err.strip().splitlines()

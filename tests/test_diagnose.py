@@ -116,13 +116,14 @@ def test_null_flights_name_nothing(seed, noise, tmp_path):
 def test_contract_and_outputs(tmp_path):
     effects, doc, _ = _case(tmp_path, ["linear_drag", "cg_offset"], seed=3, figures=True)
     out = tmp_path / "d"
-    assert sorted(p.name for p in out.iterdir()) == ["diagnosis.json", "extended_vehicle.yaml", "figures",
-                                                     "report.md"]
+    assert sorted(p.name for p in out.iterdir()) == [".qr-output.json", "diagnosis.json", "extended_vehicle.yaml",
+                                                     "figures", "report.md"]
     on_disk = json.loads((out / "diagnosis.json").read_text())
-    assert on_disk["schema"] == "qr.diagnosis/1" and on_disk["flights"] == ["flight.csv"]
+    assert on_disk["schema"] == "qr.diagnosis/1" and on_disk["flights"] == [str(tmp_path / "s" / "flight.csv")]
     assert on_disk["samples"] > 8000
     tr, te = on_disk["split"]["train"], on_disk["split"]["test"]
-    assert tr[0] == 0.0 and tr[1] < te[0] and te[1] <= 90.0
+    # in the flight file's time (it starts at t = 0), less the trimmed ends
+    assert tr[0] == on_disk["config"]["trim_s"] and tr[1] < te[0] and te[1] == 90.0 - on_disk["config"]["trim_s"]
     for key in ("nominal", "extended"):
         assert len(on_disk[key]["force_rmse"]) == 3 and len(on_disk[key]["torque_rmse"]) == 3
     for e in on_disk["effects"]:

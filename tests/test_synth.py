@@ -24,7 +24,9 @@ def synth_dir(tmp_path_factory):
 
 
 def test_writes_flight_nominal_vehicle_and_truth(synth_dir, hummingbird):
-    assert {p.name for p in synth_dir.iterdir()} == {"flight.csv", "vehicle.yaml", "truth.json", "truth.parquet"}
+    written = {"flight.csv", "vehicle.yaml", "truth.json", "truth.parquet"}
+    assert {p.name for p in synth_dir.iterdir()} == written | {".qr-output.json"}
+    assert set(json.loads((synth_dir / ".qr-output.json").read_text())["files"]) == written
     flight = pd.read_csv(synth_dir / "flight.csv")
     assert len(flight) == 6001 and np.diff(flight["t"]).min() > 0
     v = load_vehicle(synth_dir / "vehicle.yaml")

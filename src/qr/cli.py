@@ -58,7 +58,8 @@ def _parser() -> argparse.ArgumentParser:
                               "--out flight.csv")
     s.add_argument("src", help="raw log (canonical CSV or Crazyflie uSD binary)")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
-    s.add_argument("--out", required=True, help="output flight (.csv or .parquet)")
+    s.add_argument("--out", required=True, help="output flight (.csv or .parquet); never an existing file")
+    s.add_argument("--force", action="store_true", help="replace an existing --out file")
     s.add_argument("--format", default="auto", choices=["auto", "csv", "cf-usd", "ulog", "rosbag"])
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
@@ -72,7 +73,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
                    help="hidden effect in the TRUE plant (repeatable)")
-    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.add_argument("--noise-free", action="store_true", help="log the true states without noise or dropouts")
     s.add_argument("--position-noise", type=float, help="mocap position std, m (default 0.0005)")
     s.add_argument("--attitude-noise", type=float, help="mocap attitude std, rad (default 0.003)")
@@ -89,7 +91,9 @@ def _parser() -> argparse.ArgumentParser:
                               "writes summary.csv and its Markdown twin summary.md")
     s.add_argument("flights", nargs="+")
     s.add_argument("--vehicle", required=True)
-    s.add_argument("--out", required=True, help="CSV (a Markdown twin is written beside it)")
+    s.add_argument("--out", required=True,
+                   help="CSV (a Markdown twin is written beside it); never an existing file")
+    s.add_argument("--force", action="store_true", help="replace existing --out files")
 
     s = sub.add_parser("diagnose", help="name what the nominal model gets wrong (../shared/spec/diagnosis.md)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -97,13 +101,27 @@ def _parser() -> argparse.ArgumentParser:
                               "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
                               "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml")
     s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
-                   help="canonical flight(s), then optional Hydra overrides (conf/diagnose/default.yaml)")
+                   help="canonical flight(s), and optional Hydra overrides (conf/diagnose/default.yaml), "
+                        "before or after the options")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (nominal, or an extended one to build on)")
-    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    p.commands = sub.choices  # name -> subparser (for _parse)
     return p
 
 
+OUT_DIR_HELP = ("output folder: new, empty, or a previous qr output (only the files qr wrote there are "
+                "replaced)")
+FORCE_HELP = "write into a non-empty folder that qr did not write, beside its files (none of them is replaced)"
+
+
 def _cmd_ingest(a):
+    from .outputs import check_out_file
+
+    check_out_file(a.out, inputs=[a.src, a.vehicle], force=a.force)
+    if Path(a.out).suffix not in (".csv", ".parquet"):
+        raise QrInputError(a.out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
+                           "*.parquet")
     from .ingest import ingest
     from .vehicle import load_vehicle
 
@@ -133,13 +151,18 @@ def _cmd_synth(a):
     traj = TrajectoryConfig(v_max=a.v_max, tilt_max_deg=a.tilt_max, yaw_rate=a.yaw_rate, low_passes=a.low_passes)
     cfg = SynthConfig(duration=a.duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
                       trajectory=traj)
-    meta = write_synth(a.out, vehicle, effects, cfg)
+    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle])
     names = ", ".join(e["name"] for e in meta["effects"]) or "none"
     print(f"{a.out}: {meta['samples']} samples at {a.rate:g} Hz, hidden effects: {names}")
 
 
 def _cmd_summary(a):
     import pandas as pd
+
+    from .outputs import check_out_file
+
+    for out in (a.out, Path(a.out).with_suffix(".md")):
+        check_out_file(out, inputs=[*a.flights, a.vehicle], force=a.force)
 
     from .atomic import atomic_path, write_text
     from .flight import read_flight
@@ -161,7 +184,7 @@ def _cmd_diagnose(a):
     overrides = [f for f in a.flights if f not in flights]
     if not flights:
         raise QrInputError(None, "no flight given", "qr diagnose FLIGHT.csv --vehicle V.yaml --out OUTDIR")
-    run_diagnosis(flights, a.vehicle, a.out, overrides)
+    run_diagnosis(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
@@ -175,21 +198,41 @@ def main(argv: list[str] | None = None) -> int:
         return _main(argv)
 
 
+def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
+    """The documented ``qr diagnose FLIGHT... --vehicle V --out D [KEY=VALUE ...]``: overrides may follow
+    the options (argparse's intermixed parsing, which only a parser without subcommands offers)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args, rest = parser.parse_known_args(argv)
+    if args.command == "diagnose":
+        rest = argv[argv.index("diagnose") + 1:]
+        args = parser.commands["diagnose"].parse_intermixed_args(rest, argparse.Namespace(command="diagnose"))
+    elif rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    return args
+
+
 def _main(argv):
+    from .procs import Terminated, sigterm_raises
+
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = _parse(parser, argv)
     if args.command is None:
         parser.print_help()
         return 0
-    try:
-        {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary,
-         "diagnose": _cmd_diagnose}[args.command](args)
-    except QrInputError as e:
-        print(f"qr: error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        print("qr: interrupted", file=sys.stderr)
-        return 130
+    # SIGTERM (kill, a cancelled job) ends the command like Ctrl-C: its temporaries are removed
+    with sigterm_raises():
+        try:
+            {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary,
+             "diagnose": _cmd_diagnose}[args.command](args)
+        except QrInputError as e:
+            print(f"qr: error: {e}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        except Terminated:
+            print("qr: terminated; nothing half-written was left", file=sys.stderr)
+            return 128 + 15
+        except KeyboardInterrupt:
+            print("qr: interrupted; nothing half-written was left", file=sys.stderr)
+            return 130
     return 0
 
 

@@ -87,7 +87,7 @@ def apply_row(cfg: dict) -> dict:
 def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict:
     """One training run from a plain config; returns the run record (also written as JSON)."""
     from . import models, tracking
-    from .atomic import write_json
+    from .atomic import MARKER, write_json
 
     cfg = apply_row(cfg)
     target = datasets.check_target(cfg["target"])
@@ -127,7 +127,8 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
         if model.kind == "gpr":
             tracked.metrics(_hyper_metrics(model.info["hyperparameters"], target))
         for f in sorted(Path(model_dir).iterdir()):
-            tracked.artifact(f, "model")
+            if f.name != MARKER:  # qr's own bookkeeping, not part of the model
+                tracked.artifact(f, "model")
         tracked.artifact(run_json)
     return record
 

@@ -3,12 +3,14 @@
 Contract: ../shared/spec/diagnosis.md.  ``run_diagnosis`` reads the flights and
 the vehicle, filters (zero-lag smoother by default), diagnoses (``core``) and
 writes ``OUTDIR/diagnosis.json``, ``report.md``, ``figures/`` and
-``extended_vehicle.yaml``, all at once (a temporary directory renamed into
-place) and nothing anywhere else.
+``extended_vehicle.yaml``, all at once (built in a temporary folder, then
+moved into place) and nothing anywhere else.  Where it writes is checked first
+(:func:`qr.outputs.check_out_dir`): qr never replaces a file it did not write.
 """
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -46,23 +48,31 @@ def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None
     return add_matched_rotor_signals(st, flight, matched), halves(flight, vehicle, matched), report
 
 
+# what OUTDIR receives (a folder name ends in "/"): checked against the user's files before any work
+OUTPUTS = ("diagnosis.json", "report.md", "extended_vehicle.yaml", "figures/")
+
+
 def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None, log=None,
-                  return_result: bool = False, reports: list | None = None, figures: bool = True):
+                  return_result: bool = False, reports: list | None = None, figures: bool = True,
+                  force: bool = False):
+    """Diagnose ``flights`` and write ``out`` (refused before any work if ``out`` is not qr's to write,
+    :func:`qr.outputs.check_out_dir`; ``force``: write beside a folder's other files)."""
+    from ..outputs import check_out_dir
+
+    out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+
     from ..atomic import atomic_dir, write_json
     from ..config import to_dict
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
     from .core import DiagnoseConfig, diagnose, extended_effects
-    from .report import make_figures, to_json, write_report
+    from .report import make_figures, note_nulls, to_json, write_report
 
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
     cfg = _compose(overrides)
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
     vehicle = load_vehicle(vehicle)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise QrInputError(out, "output path exists and is not a directory", "give a directory for --out")
     measured = [read_flight(f, vehicle) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
@@ -70,8 +80,11 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     for f, m in zip(flights, measured):
         span = m["t"].iloc[-1] - m["t"].iloc[0]
         if span < need:
+            longest = ((span - 2 * dcfg.trim_s) * dcfg.train_fraction - dcfg.gap_s / 2) / blocks  # block that fits
+            shorter = (f", or shorter cross-validation blocks: add diagnose.block_s={math.floor(10 * longest) / 10:g} "
+                       "at the end of the command" if longest >= 0.5 else "")
             raise QrInputError(f, f"flight lasts {span:.1f} s, too short to hold out a test part (needs {need:.1f} s)",
-                               "give a longer flight (30 s or more), several flights, or a smaller diagnose.block_s")
+                               f"give a longer flight (30 s or more) or several flights{shorter}")
     states, pairs = [], []
     for i, m in enumerate(measured):
         say(f"filtering {Path(flights[i]).name} ({len(m)} samples, filter={cfg.filter.get('name', '?')})")
@@ -84,13 +97,14 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)
-    doc = to_json(res, [Path(f).name for f in flights], dcfg_dict)
+    doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
+    strict = note_nulls(doc)  # diagnosis.json: null (and a note) where the report prints nan
     ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, force=force, command="qr diagnose") as tmp:
         figs = make_figures(tmp, res, vehicle) if figures else {}
         write_report(tmp, doc, res, figs)
-        write_json(tmp / "diagnosis.json", doc)
+        write_json(tmp / "diagnosis.json", strict)
         save_vehicle(ext, tmp / "extended_vehicle.yaml",
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
                             "the nominal parameters plus the named effects")
@@ -98,7 +112,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
         track_diagnosis(out.name, doc, flights, out, {"nominal_loss": res["nominal_loss"],
                                                       "extended_loss": res["extended_loss"]})
     say(doc["verdict"])
-    return (doc, res) if return_result else doc
+    return (strict, res) if return_result else strict
 
 
 def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None) -> None:

@@ -86,8 +86,8 @@ def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Pr
             remap = {b: blocks_next + j for j, b in enumerate(used)}
             block[train] = [remap[b] for b in block[train]]
             blocks_next += len(used)
-        windows.append({"train": [0.0, float(cut - cfg.gap_s / 2 - t0)],
-                        "test": [float(cut + cfg.gap_s / 2 - t0), float(t1 - t0)]})
+        windows.append({"train": [float(t0), float(cut - cfg.gap_s / 2)],  # on the flight file's t axis
+                        "test": [float(cut + cfg.gap_s / 2), float(t1)]})
         parts.append((s, y, sd, t, np.full(len(t), i), train, test, block))
     cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
     s_all = Signals(*(np.concatenate([getattr(p[0], f) for p in parts])
@@ -297,19 +297,29 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     return result
 
 
+# An axis's residual variance must exceed the noise floor's by this fraction of it before the anatomy
+# shares it out: the floor is an estimate, and a few per cent of it is within its own uncertainty.
+ANATOMY_MIN_SIGNAL = 0.05
+
+
 def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.ndarray, vehicle,
             candidates: list[str], force_only=()) -> dict:
     """Share of each axis's held-out residual variance that each candidate explains alone (fit on train).
 
     Net of the noise floor: a share of 1 would leave only noise.  Negative: it does worse than nothing.
+    NaN for an axis at the noise floor: its residual variance exceeds the noise variance by less than
+    ``ANATOMY_MIN_SIGNAL`` of it, so there is nothing above noise to share out (dividing by that
+    difference would print noise as huge shares).
     """
     out = {}
     base = np.nanmean(y_test**2, axis=0)
-    signal = np.maximum(base - np.nanmean(sd_test**2, axis=0), 1e-300)
+    noise = np.nanmean(sd_test**2, axis=0)
+    signal = base - noise
+    above = signal > ANATOMY_MIN_SIGNAL * noise
     for e in candidates:
         pred = predict(s_test, vehicle, [e], fit(stats, [e]), force_only)
         gain = base - np.nanmean((y_test - pred) ** 2, axis=0)
-        out[e] = (gain / signal).tolist()
+        out[e] = np.divide(gain, signal, out=np.full(len(gain), np.nan), where=above).tolist()
     return out
 
 
@@ -324,7 +334,7 @@ def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
         for key, eff in (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects))):
             err = replay_mod.replay(st, meas, vehicle, eff, cfg.horizon_s)
             w = prep.windows[i]
-            err["test"] = err["t"] - err["t"].iloc[0] >= w["test"][0]
+            err["test"] = err["t"] >= w["test"][0]
             err["flight"] = i
             out[key].append(err)
     res = {}

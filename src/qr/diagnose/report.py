@@ -28,12 +28,13 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
         "confounded_with": list(e["confounded_with"]),
     } for e in res["effects"]]
     w0 = res["windows"][0]
+    ms = lambda w: [round(float(x), 3) for x in w]  # noqa: E731  (on the file's t axis, which may be a clock)
     return {
         "schema": SCHEMA,
         "flights": flight_names,
         "samples": res["samples"],
-        "split": {"train": _r(w0["train"], 5), "test": _r(w0["test"], 5),
-                  "per_flight": [{"train": _r(w["train"], 5), "test": _r(w["test"], 5)} for w in res["windows"]]},
+        "split": {"train": ms(w0["train"]), "test": ms(w0["test"]),
+                  "per_flight": [{"train": ms(w["train"]), "test": ms(w["test"])} for w in res["windows"]]},
         "nominal": {"force_rmse": _r(res["nominal_rmse"][:3]), "torque_rmse": _r(res["nominal_rmse"][3:])},
         "effects": effects,
         "extended": {"force_rmse": _r(res["extended_rmse"][:3]), "torque_rmse": _r(res["extended_rmse"][3:])},
@@ -92,6 +93,44 @@ def verdict(res: dict) -> str:
             f"held-out residual variance (now {res['extended_loss']:.2f} x the noise floor's variance).")
 
 
+def note_nulls(doc: dict) -> dict:
+    """``doc`` as strict JSON: a number that is not finite becomes null, and ``notes`` says why."""
+    from ..atomic import finite_or_null
+
+    doc, nulls = finite_or_null(doc)
+    notes = []
+    if any(p.startswith("anatomy.") for p in nulls):
+        notes.append("anatomy: null for an axis whose held-out residual is at the noise floor (nothing above "
+                     "noise to share out)")
+    other = [p for p in nulls if not p.startswith("anatomy.")]
+    if other:
+        notes.append(f"null where the number is not finite on this data (not computable): {', '.join(other)}")
+    if notes:
+        doc["notes"] = notes
+    return doc
+
+
+def _anatomy_table(anatomy: dict) -> list[str]:
+    """The residual-anatomy table; "–" for an axis at the noise floor (its share is NaN or None)."""
+    if not anatomy:
+        return []
+    shares = {k: np.array([np.nan if x is None else x for x in v], dtype=float) for k, v in anatomy.items()}
+    floor = np.all([~np.isfinite(v) for v in shares.values()], axis=0)
+    if floor.all():
+        return ["Residual anatomy: every axis's held-out residual is at the noise floor; there is nothing above "
+                "noise for a candidate to explain.\n"]
+    L = ["Residual anatomy: share of each axis's held-out residual (above the noise floor) that each candidate "
+         "explains on its own, fitted on the training part (1 = all of it, < 0 = worse than nothing; shares of "
+         "different candidates overlap; – = the axis is at the noise floor, nothing to share out):\n",
+         "| candidate | " + " | ".join(AXES) + " |", "|---|" + "---:|" * 6]
+    best = {k: (np.nanmax(v) if np.isfinite(v).any() else -np.inf) for k, v in shares.items()}
+    for name in sorted(shares, key=lambda k: -best[k]):
+        cells = " | ".join("–" if not np.isfinite(x) else "0" if abs(x) < 0.005 else f"{x:.2f}"
+                           for x in shares[name])
+        L.append(f"| `{name}` | {cells} |")
+    return L + [""]
+
+
 def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
     L = []
     names = doc["flights"]
@@ -148,16 +187,7 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
         L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {med} "
                  f"| {dec} |")
     L.append("")
-    if res.get("anatomy"):
-        L.append("Residual anatomy: share of each axis's held-out residual (above the noise floor) that each "
-                 "candidate explains on its own, fitted on the training part (1 = all of it, < 0 = worse than "
-                 "nothing; shares of different candidates overlap):\n")
-        L.append("| candidate | " + " | ".join(AXES) + " |")
-        L.append("|---|" + "---:|" * 6)
-        for name, shares in sorted(res["anatomy"].items(), key=lambda kv: -max(kv[1])):
-            cells = " | ".join("-" if abs(x) < 0.005 else f"{x:.2f}" for x in shares)
-            L.append(f"| `{name}` | {cells} |")
-        L.append("")
+    L += _anatomy_table(res.get("anatomy") or {})
     for name, d in doc["selection"].get("torque_arbitration", {}).items():
         given = ", ".join(f"`{e}`" for e in d.get("given", [])) or "no other effect"
         L.append(f"Roll/pitch torque cannot arbitrate `{name}`: given {given}, the torque rows would need "

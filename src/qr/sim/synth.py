@@ -157,24 +157,35 @@ def synthesize(vehicle, effects: list[dict], cfg: SynthConfig):
     return flight, truth
 
 
-def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig) -> dict:
-    """Write ``flight.csv``, ``vehicle.yaml`` (nominal), ``truth.json`` and ``truth.parquet``."""
+OUTPUTS = ("flight.csv", "vehicle.yaml", "truth.json", "truth.parquet")
+
+
+def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: bool = False,
+                inputs=()) -> dict:
+    """Write ``flight.csv``, ``vehicle.yaml`` (nominal), ``truth.json`` and ``truth.parquet``.
+
+    ``outdir`` is checked before the flight is simulated (:func:`qr.outputs.check_out_dir`; ``inputs``:
+    the files it must not hold; ``force``: write beside a folder's other files).
+    """
+    from ..outputs import check_out_dir
+
+    check_out_dir(outdir, inputs=inputs, force=force, expected=OUTPUTS)
     effects = validate_effect_list(vehicle.effects) + validate_effect_list(effects)
     vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
-    flight, truth = synthesize(vehicle, effects, cfg)
-    meta = {
-        "schema": "qr.synth/1",
-        "vehicle": vehicle.name,
-        "effects": effects,
-        "seed": cfg.seed,
-        "duration": cfg.duration,
-        "rate": cfg.rate,
-        "noise_free": cfg.noise_free,
-        "noise": asdict(cfg.noise),
-        "trajectory": asdict(cfg.trajectory),
-        "samples": len(flight),
-    }
-    with atomic_dir(outdir) as tmp:
+    with atomic_dir(outdir, force=force, command="qr synth") as tmp:
+        flight, truth = synthesize(vehicle, effects, cfg)
+        meta = {
+            "schema": "qr.synth/1",
+            "vehicle": vehicle.name,
+            "effects": effects,
+            "seed": cfg.seed,
+            "duration": cfg.duration,
+            "rate": cfg.rate,
+            "noise_free": cfg.noise_free,
+            "noise": asdict(cfg.noise),
+            "trajectory": asdict(cfg.trajectory),
+            "samples": len(flight),
+        }
         write_flight(flight, tmp / "flight.csv")
         save_vehicle(vehicle, tmp / "vehicle.yaml",
                      header="NOMINAL vehicle of a qr synth flight: the hidden effects are in truth.json")
