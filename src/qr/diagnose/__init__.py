@@ -52,6 +52,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..config import to_dict
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
+    from ..segments import flight_segments
     from .core import DiagnoseConfig, diagnose, extended_effects
     from .report import make_figures, to_json, write_report
 
@@ -63,29 +64,45 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise QrInputError(out, "output path exists and is not a directory", "give a directory for --out")
-    measured = [read_flight(f, vehicle) for f in flights]
+    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
+    measured = [read_flight(f) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
-    need = 2 * dcfg.trim_s + (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
+    need = (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
+    split = []
     for f, m in zip(flights, measured):
-        span = m["t"].iloc[-1] - m["t"].iloc[0]
-        if span < need:
-            raise QrInputError(f, f"flight lasts {span:.1f} s, too short to hold out a test part (needs {need:.1f} s)",
+        fs = flight_segments(m, vehicle, 2 * dcfg.trim_s + dcfg.block_s, f)
+        usable = sum(s.window[1] - s.window[0] - 2 * dcfg.trim_s for s in fs.used)
+        if usable < need:
+            raise QrInputError(f, f"flight lasts {usable + 2 * dcfg.trim_s:.1f} s airborne"
+                                  f"{f' in {len(fs.used)} segments' if len(fs.used) > 1 else ''}, too short to hold "
+                                  f"out a test part (needs {need + 2 * dcfg.trim_s:.1f} s)",
                                "give a longer flight (30 s or more), several flights, or a smaller diagnose.block_s")
-    states, pairs = [], []
-    for i, m in enumerate(measured):
-        say(f"filtering {Path(flights[i]).name} ({len(m)} samples, filter={cfg.filter.get('name', '?')})")
-        st, pair, _ = prepare_flight(m, vehicle, to_dict(cfg.filter), reports[i] if reports else None)
-        states.append(st)
-        pairs.append(pair)
+        split.append(fs)
+    work = []  # (flight, segment start, state table, cross-fitting pair, measured rows)
+    for i, fs in enumerate(split):
+        name = Path(flights[i]).name
+        _say_segments(say, name, fs)
+        report = reports[i] if reports else None
+        # the longest segment first: a tuning filter (filter=auto) is tuned there, once per flight
+        for seg in sorted(fs.used, key=lambda s: s.window[0] - s.window[1]):
+            say(f"filtering {name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples, "
+                f"filter={cfg.filter.get('name', '?')})")
+            st, pair, report = prepare_flight(seg.rows, vehicle, to_dict(cfg.filter), report)
+            for table in (st, *pair):
+                table.attrs["flight"] = i  # qr.diagnose.core.prepare: one flight, split once
+            work.append((i, seg.window[0], st, pair, seg.rows))
+    work.sort(key=lambda w: w[:2])  # flights in order, each one's segments in time order
+    _, _, states, pairs, pieces = (list(x) for x in zip(*work))
     say("identifying effects")
-    res = diagnose(states, measured, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
+    res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
     from .remainder import remainder
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)
     doc = to_json(res, [Path(f).name for f in flights], dcfg_dict)
     doc["filter"] = to_dict(cfg.filter)
+    doc.update(segments_json(doc["flights"], split))
     ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
     with atomic_dir(out) as tmp:
         figs = make_figures(tmp, res, vehicle) if figures else {}
@@ -99,6 +116,33 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
                                                       "extended_loss": res["extended_loss"]})
     say(doc["verdict"])
     return (doc, res) if return_result else doc
+
+
+def _say_segments(say, name, fs) -> None:
+    if fs.ground_s > 0:
+        spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in fs.airborne)
+        say(f"{name}: airborne {spans}; {fs.ground_s:.1f} s on the ground left out")
+    for g0, g1 in fs.gaps:
+        say(f"{name}: no samples from {g0:.2f} to {g1:.2f} s: the parts before and after are separate segments")
+    for seg in fs.segments:
+        if not seg.used:
+            say(f"{name}: segment {seg.window[0]:.2f}-{seg.window[1]:.2f} s not used: {seg.note}")
+
+
+def segments_json(names: list[str], split) -> dict:
+    """``diagnosis.json``'s account of the data used: airborne windows, time gaps, segments (flight time, s)."""
+    r = lambda x: round(float(x), 4)  # noqa: E731
+    airborne, gaps, segments = [], [], []
+    for name, fs in zip(names, split):
+        airborne.append({"flight": name, "window": [r(fs.airborne[0][0]), r(fs.airborne[-1][1])],
+                         "dropped_s": r(fs.ground_s)})
+        if len(fs.airborne) > 1:
+            airborne[-1]["windows"] = [[r(a), r(b)] for a, b in fs.airborne]
+        gaps += [{"flight": name, "from": r(a), "to": r(b)} for a, b in fs.gaps]
+        for seg in fs.segments:
+            segments.append({"flight": name, "window": [r(x) for x in seg.window], "samples": len(seg.rows),
+                             "used": seg.used, **({"note": seg.note} if seg.note else {})})
+    return {"airborne": airborne, "time_gaps": gaps, "segments": segments}
 
 
 def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None) -> None:
