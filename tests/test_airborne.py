@@ -124,6 +124,26 @@ def test_a_vehicle_that_never_flies_is_refused(case, phrase, tmp_path, capsys, h
     _assert_refused(capsys, tmp_path, path, phrase, "ground.csv")
 
 
+@pytest.mark.parametrize("every_s, phrase", [
+    (2.0, "no airborne stretch without a time gap lasts 3.0 s (2 trim_s + block_s; the longest: 1.8 s)"),
+    (10.0, "flight lasts 58.7 s airborne in 6 segments between time gaps, too short to hold out a test part "
+           "(needs 63.9 s)"),
+])
+def test_a_flight_chopped_by_gaps_is_refused_when_too_little_is_left(every_s, phrase, tmp_path, capsys):
+    """2 s pieces are all shorter than a segment must be (2 x 0.5 s + 2 s); with diagnose.block_s=8, five
+    training blocks and half the gap need (5 x 8 + 0.5) / 0.7 = 57.9 s, six 9.79 s segments leave 6 x 8.79 s."""
+    df = _flight(6000).round({"t": 6})
+    k = int(round(every_s * RATE))
+    df = df[np.arange(len(df)) % k < k - 20]  # 0.2 s missing every `every_s`
+    path = tmp_path / "chopped.csv"
+    df.to_csv(path, index=False)
+    out = tmp_path / "diag"
+    overrides = ["diagnose.block_s=8"] if every_s > 5 else []
+    status, _, err = run_cli(["diagnose", path, *overrides, "--vehicle", HB, "--out", out], capsys)
+    assert status == 2 and len(err.strip().splitlines()) == 1 and phrase in err, err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("scale, unit, fix", [(1e3, "milliseconds", "divide t by 1000"),
                                               (1e6, "microseconds", "divide t by 1e6")])
 def test_time_stamps_not_in_seconds_are_refused(scale, unit, fix, tmp_path, capsys):

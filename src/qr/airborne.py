@@ -34,12 +34,13 @@ MIN_AIRBORNE_S = 0.5  # s
 MOVE_M = 0.05  # m, a log whose position never spans this never flew
 
 
-def _interp_nan(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Dropouts filled from the neighbouring samples (linear in time)."""
+def _interp_nan(t: np.ndarray, x: np.ndarray, edges=None) -> np.ndarray:
+    """Dropouts filled from the neighbouring samples (linear in time); before the first and after the
+    last sample ``edges`` (default: the nearest sample)."""
     ok = np.isfinite(x)
     if ok.all() or not ok.any():
         return x
-    return np.interp(t, t[ok], x[ok])
+    return np.interp(t, t[ok], x[ok], left=edges, right=edges)
 
 
 def _rolling(x: np.ndarray, n: int, how: str) -> np.ndarray:
@@ -77,7 +78,9 @@ def airborne_mask(df: pd.DataFrame, vehicle) -> np.ndarray:
         return np.zeros(n, dtype=bool)
     step = float(np.median(np.diff(t)))
     samples = lambda s: max(1, int(round(s / step)))  # noqa: E731
-    r = _interp_nan(t, thrust_ratio(df, vehicle))
+    # not logged before the first or after the last rotor sample (a logger that starts when armed):
+    # unknown thrust, not flight
+    r = _interp_nan(t, thrust_ratio(df, vehicle), edges=0.0)
     if not np.isfinite(r).any():
         return np.ones(n, dtype=bool)  # no rotor speeds at all: the filters refuse such a log
     r = _rolling(r, samples(SMOOTH_S) | 1, "median")  # odd: a step between rows stays there
@@ -118,7 +121,8 @@ def check_airborne(df: pd.DataFrame, vehicle, path=None) -> list[tuple[float, fl
 
     p = df[POSITION].to_numpy(dtype=float)
     ok = np.isfinite(p).all(axis=1)
-    span = np.ptp(p[ok], axis=0).max() if ok.sum() > 1 else 0.0
+    # robust to a few wild mocap samples
+    span = np.max(np.diff(np.percentile(p[ok], [1, 99], axis=0), axis=0)) if ok.sum() > 1 else 0.0
     if span < MOVE_M:
         raise QrInputError(path, f"never airborne: the position never changes by more than {100 * MOVE_M:.0f} cm "
                                  f"(it spans {100 * span:.1f} cm)",
@@ -126,7 +130,8 @@ def check_airborne(df: pd.DataFrame, vehicle, path=None) -> list[tuple[float, fl
     check_hover_ratio(df, vehicle, path)
     windows = airborne_windows(df, vehicle)
     if not windows:
-        r = np.nanmax(thrust_ratio(df, vehicle)) if np.isfinite(thrust_ratio(df, vehicle)).any() else 0.0
+        ratio = thrust_ratio(df, vehicle)
+        r = np.nanmax(ratio) if np.isfinite(ratio).any() else 0.0
         why = (f"the rotor-map thrust never exceeds {THRUST_ON:g} x m g (at most {r:.2f} x m g)"
                if r < THRUST_ON else
                f"with thrust on, it never rises {100 * NEAR_M:.0f} cm from where it rested, "

@@ -72,12 +72,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     split = []
     for f, m in zip(flights, measured):
         fs = flight_segments(m, vehicle, 2 * dcfg.trim_s + dcfg.block_s, f)
-        usable = sum(s.window[1] - s.window[0] - 2 * dcfg.trim_s for s in fs.used)
-        if usable < need:
-            raise QrInputError(f, f"flight lasts {usable + 2 * dcfg.trim_s:.1f} s airborne"
-                                  f"{f' in {len(fs.used)} segments' if len(fs.used) > 1 else ''}, too short to hold "
-                                  f"out a test part (needs {need + 2 * dcfg.trim_s:.1f} s)",
-                               "give a longer flight (30 s or more), several flights, or a smaller diagnose.block_s")
+        _check_length(f, fs, need, dcfg)
         split.append(fs)
     work = []  # (flight, segment start, state table, cross-fitting pair, measured rows)
     for i, fs in enumerate(split):
@@ -116,6 +111,21 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
                                                       "extended_loss": res["extended_loss"]})
     say(doc["verdict"])
     return (doc, res) if return_result else doc
+
+
+def _check_length(path, fs, need: float, dcfg) -> None:
+    """Refuse a flight whose used segments, less ``trim_s`` at each end, cannot hold ``need`` seconds."""
+    fix = "give a longer flight (30 s or more), several flights, or a smaller diagnose.block_s"
+    longest = max(s.window[1] - s.window[0] for s in fs.segments)
+    if not fs.used:
+        raise QrInputError(path, f"no airborne stretch without a time gap lasts {2 * dcfg.trim_s + dcfg.block_s:.1f} s "
+                                 f"(2 trim_s + block_s; the longest: {longest:.1f} s)", fix)
+    n = len(fs.used)
+    lasts = sum(s.window[1] - s.window[0] for s in fs.used)
+    if lasts - 2 * dcfg.trim_s * n < need:
+        where = "airborne" if not fs.gaps else f"airborne in {n} segment{'s' if n > 1 else ''} between time gaps"
+        raise QrInputError(path, f"flight lasts {lasts:.1f} s {where}, too short to hold out a test part "
+                                 f"(needs {need + 2 * dcfg.trim_s * n:.1f} s)", fix)
 
 
 def _say_segments(say, name, fs) -> None:
