@@ -93,8 +93,7 @@ def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Pr
         spans = [(st["t"].to_numpy()[k][0], st["t"].to_numpy()[k][-1])
                  for st, k, o in zip(states_list, keeps, owner) if o == f and k.any()]
         if not spans:
-            windows.append({"train": [float("nan")] * 2, "test": [float("nan")] * 2})
-            continue
+            raise ValueError(f"flight {f}: no sample left after trimming trim_s={cfg.trim_s} s at each end")
         cut = cuts[f] = _cut(spans, cfg.train_fraction)
         windows.append({"train": [float(spans[0][0]), float(cut - cfg.gap_s / 2)],
                         "test": [float(cut + cfg.gap_s / 2), float(spans[-1][1])]})
