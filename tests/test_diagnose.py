@@ -122,8 +122,9 @@ def test_contract_and_outputs(tmp_path):
     assert on_disk["schema"] == "qr.diagnosis/1" and on_disk["flights"] == [str(tmp_path / "s" / "flight.csv")]
     assert on_disk["samples"] > 8000
     tr, te = on_disk["split"]["train"], on_disk["split"]["test"]
-    # in the flight file's time (it starts at t = 0), less the trimmed ends
-    assert tr[0] == on_disk["config"]["trim_s"] and tr[1] < te[0] and te[1] == 90.0 - on_disk["config"]["trim_s"]
+    # in the flight file's time (it starts at t = 0): from the first sample used (after trim_s = 0.5 s) to
+    # the last, gap_s = 1 s between
+    assert tr[0] == 0.5 and te[0] - tr[1] == pytest.approx(1.0) and te[1] == 89.5
     for key in ("nominal", "extended"):
         assert len(on_disk[key]["force_rmse"]) == 3 and len(on_disk[key]["torque_rmse"]) == 3
     for e in on_disk["effects"]:

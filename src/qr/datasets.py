@@ -128,10 +128,16 @@ def targets(signals, vehicle, target: str) -> np.ndarray:
 
 
 def flight_table(states: pd.DataFrame, vehicle, flight: str) -> pd.DataFrame:
-    """Learning-table rows of one filtered flight (a state table, ``qr.states``)."""
+    """Learning-table rows of one filtered flight (a state table, ``qr.states``): its airborne rows.
+
+    On the ground the floor carries the vehicle (``qr.airborne``): a model that learned
+    those rows would learn the floor.
+    """
+    from .airborne import airborne_mask
     from .states import check, signals
 
     check(states, flight)
+    states = states[airborne_mask(states, vehicle)].reset_index(drop=True)
     s = signals(states)
     cols = {"flight": flight, "t": states["t"].to_numpy(dtype=float)}
     for g in GROUPS:

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .atomic import atomic_path
-from .errors import QrInputError
+from .errors import QrInputError, warn
 from .frames import make_continuous
 
 POSITION = ["px", "py", "pz"]
@@ -112,9 +112,10 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
         df[c] = df[c].astype("float64")
 
     t = df["t"].to_numpy()
-    if np.isnan(t).any():
-        i = int(np.flatnonzero(np.isnan(t))[0])
-        raise _error(path, f"time stamp missing at data row {i + 1}", "every row needs a time stamp t (s)")
+    if not np.isfinite(t).all():
+        i = int(np.flatnonzero(~np.isfinite(t))[0])
+        what = "missing" if np.isnan(t[i]) else f"{t[i]} (not a number of seconds)"
+        raise _error(path, f"time stamp {what} at data row {i + 1}", "every row needs a time stamp t (s)")
     dt = np.diff(t)
     if (dt == 0).any():
         i = int(np.flatnonzero(dt == 0)[0])
@@ -124,6 +125,8 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
         i = int(np.flatnonzero(dt < 0)[0])
         raise _error(path, f"time stamps not strictly increasing (t={t[i]:.6f} then {t[i + 1]:.6f} "
                            f"at data rows {i + 1}-{i + 2})", "sort the rows by t, or fix the clock")
+    _check_time_unit(path, t)
+    _infinite_to_dropouts(path, df, [c for c in cols if c in REQUIRED[1:] or c in OPTIONAL])
 
     q = df[QUATERNION].to_numpy()
     n = np.linalg.norm(q, axis=1)
@@ -150,14 +153,60 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
     return df[REQUIRED + opt + extra].reset_index(drop=True)
 
 
+# a quadrotor log's sample period lies between ~0.1 ms and 1 s, and a flight lasts less than a day
+PLAUSIBLE_STEP_S = (1e-4, 1.0)
+PLAUSIBLE_SPAN_S = 86400.0
+TIME_UNITS = {1e3: ("milliseconds", "1000"), 1e6: ("microseconds", "1e6"), 1e9: ("nanoseconds", "1e9")}
+
+
+def _check_time_unit(path, t: np.ndarray) -> None:
+    """Refuse time stamps that cannot be seconds (a log in ms or µs), naming the likely unit."""
+    if len(t) < 2:
+        return
+    step, span = float(np.median(np.diff(t))), float(t[-1] - t[0])
+    lo, hi = PLAUSIBLE_STEP_S
+    if lo <= step <= hi and span <= PLAUSIBLE_SPAN_S:
+        return
+    seen = f"median step {step:.4g}, span {span:.4g} over {len(t)} rows"
+    fits = [f for f in TIME_UNITS if lo <= step / f <= hi and span / f <= PLAUSIBLE_SPAN_S]
+    if fits:  # the unit whose rate is closest to a typical 100 Hz
+        f = min(fits, key=lambda f: abs(np.log10(step / f / 0.01)))
+        unit, div = TIME_UNITS[f]
+        raise _error(path, f"time stamps look like {unit}, not seconds ({seen}: {step / f:.4g} s per sample "
+                           f"in seconds)", f"divide t by {div} so it is in seconds")
+    raise _error(path, f"time stamps cannot be seconds ({seen}; a sample period lies between "
+                       f"{lo:g} and {hi:g} s and a flight lasts less than a day)", "give t in seconds")
+
+
+def _infinite_to_dropouts(path, df: pd.DataFrame, cols: list[str]) -> None:
+    """An infinite sensor value is a sensor fault: a dropout of that sensor (NaN), with one warning."""
+    vals = df[cols].to_numpy()
+    bad = np.isinf(vals)
+    if not bad.any():
+        return
+    r, c = np.argwhere(bad)[0]
+    where = ", ".join(f"{cols[k]} ({int(n)})" for k, n in enumerate(bad.sum(axis=0)) if n)
+    df[cols] = np.where(bad, np.nan, vals)
+    warn(path, f"{int(bad.sum())} infinite value(s) in {where}, first at data row {r + 1} "
+               f"(t={df['t'].iloc[r]:.3f}): read as dropouts of that sensor",
+         "check the logger; blank cells mark dropouts")
+
+
 def hover_ratio(df: pd.DataFrame, vehicle) -> float:
-    """Median rotor-map thrust over m g: near 1 for a flight with consistent units."""
+    """Median rotor-map thrust over m g while the rotors work: near 1 for a flight with consistent units.
+
+    Rows with the motors off or idling (below a quarter of the log's high thrust, its 99th
+    percentile) do not count: a log may spend most of its time on the ground.
+    """
     u = df[ROTORS].to_numpy()
     ok = np.isfinite(u).all(axis=1)
     if not ok.any():
         return float("nan")
     T, _ = vehicle.rotors.thrust_torque(u[ok])
-    return float(np.median(T) / (vehicle.mass * 9.81))
+    high = np.percentile(T, 99)
+    if high <= 0:
+        return float("nan")  # the rotors never turn: no unit to check
+    return float(np.median(T[T >= 0.25 * high]) / (vehicle.mass * 9.81))
 
 
 def check_hover_ratio(df, vehicle, path=None):

@@ -65,6 +65,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..config import to_dict
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
+    from ..segments import flight_segments
     from .core import DiagnoseConfig, diagnose, extended_effects
     from .report import make_figures, note_nulls, to_json, write_report
 
@@ -73,32 +74,40 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
     vehicle = load_vehicle(vehicle)
-    measured = [read_flight(f, vehicle) for f in flights]
+    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
+    measured = [read_flight(f) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
-    need = 2 * dcfg.trim_s + (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
+    need = (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
+    split = []
     for f, m in zip(flights, measured):
-        span = m["t"].iloc[-1] - m["t"].iloc[0]
-        if span < need:
-            longest = ((span - 2 * dcfg.trim_s) * dcfg.train_fraction - dcfg.gap_s / 2) / blocks  # block that fits
-            shorter = (f", or shorter cross-validation blocks: add diagnose.block_s={math.floor(10 * longest) / 10:g} "
-                       "at the end of the command" if longest >= 0.5 else "")
-            raise QrInputError(f, f"flight lasts {span:.1f} s, too short to hold out a test part (needs {need:.1f} s)",
-                               f"give a longer flight (30 s or more) or several flights{shorter}")
-    states, pairs = [], []
-    for i, m in enumerate(measured):
-        say(f"filtering {Path(flights[i]).name} ({len(m)} samples, filter={cfg.filter.get('name', '?')})")
-        st, pair, _ = prepare_flight(m, vehicle, to_dict(cfg.filter), reports[i] if reports else None)
-        states.append(st)
-        pairs.append(pair)
+        fs = flight_segments(m, vehicle, 2 * dcfg.trim_s + dcfg.block_s, f)
+        _check_length(f, fs, need, dcfg, blocks)
+        split.append(fs)
+    work = []  # (flight, segment start, state table, cross-fitting pair, measured rows)
+    for i, fs in enumerate(split):
+        name = Path(flights[i]).name
+        _say_segments(say, name, fs)
+        report = reports[i] if reports else None
+        # the longest segment first: a tuning filter (filter=auto) is tuned there, once per flight
+        for seg in sorted(fs.used, key=lambda s: s.window[0] - s.window[1]):
+            say(f"filtering {name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples, "
+                f"filter={cfg.filter.get('name', '?')})")
+            st, pair, report = prepare_flight(seg.rows, vehicle, to_dict(cfg.filter), report)
+            for table in (st, *pair):
+                table.attrs["flight"] = i  # qr.diagnose.core.prepare: one flight, split once
+            work.append((i, seg.window[0], st, pair, seg.rows))
+    work.sort(key=lambda w: w[:2])  # flights in order, each one's segments in time order
+    _, _, states, pairs, pieces = (list(x) for x in zip(*work))
     say("identifying effects")
-    res = diagnose(states, measured, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
+    res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
     from .remainder import remainder
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
+    doc.update(segments_json(doc["flights"], split))
     strict = note_nulls(doc)  # diagnosis.json: null (and a note) where the report prints nan
     ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
     with atomic_dir(out, force=force, command="qr diagnose") as tmp:
@@ -113,6 +122,51 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
                                                       "extended_loss": res["extended_loss"]})
     say(doc["verdict"])
     return (strict, res) if return_result else strict
+
+
+def _check_length(path, fs, need: float, dcfg, blocks: int) -> None:
+    """Refuse a flight whose used segments, less ``trim_s`` at each end, cannot hold ``need`` seconds."""
+    longest = max(s.window[1] - s.window[0] for s in fs.segments)
+    n = len(fs.used)
+    lasts = sum(s.window[1] - s.window[0] for s in fs.used)
+    fits = ((lasts - 2 * dcfg.trim_s * n) * dcfg.train_fraction - dcfg.gap_s / 2) / blocks  # the block that fits
+    shorter = (f", or shorter cross-validation blocks: add diagnose.block_s={math.floor(10 * fits) / 10:g} "
+               "at the end of the command" if fits >= 0.5 else "")
+    fix = f"give a longer flight (30 s or more) or several flights{shorter}"
+    if not fs.used:
+        raise QrInputError(path, f"no airborne stretch without a time gap lasts {2 * dcfg.trim_s + dcfg.block_s:.1f} s "
+                                 f"(2 trim_s + block_s; the longest: {longest:.1f} s)", fix)
+    if lasts - 2 * dcfg.trim_s * n < need:
+        where = "airborne" if not fs.gaps else f"airborne in {n} segment{'s' if n > 1 else ''} between time gaps"
+        raise QrInputError(path, f"flight lasts {lasts:.1f} s {where}, too short to hold out a test part "
+                                 f"(needs {need + 2 * dcfg.trim_s * n:.1f} s)", fix)
+
+
+def _say_segments(say, name, fs) -> None:
+    if fs.ground_s > 0:
+        spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in fs.airborne)
+        say(f"{name}: airborne {spans}; {fs.ground_s:.1f} s on the ground left out")
+    for g0, g1 in fs.gaps:
+        say(f"{name}: no samples from {g0:.2f} to {g1:.2f} s: the parts before and after are separate segments")
+    for seg in fs.segments:
+        if not seg.used:
+            say(f"{name}: segment {seg.window[0]:.2f}-{seg.window[1]:.2f} s not used: {seg.note}")
+
+
+def segments_json(names: list[str], split) -> dict:
+    """``diagnosis.json``'s account of the data used: airborne windows, time gaps, segments (flight time, s)."""
+    r = lambda x: round(float(x), 4)  # noqa: E731
+    airborne, gaps, segments = [], [], []
+    for name, fs in zip(names, split):
+        airborne.append({"flight": name, "window": [r(fs.airborne[0][0]), r(fs.airborne[-1][1])],
+                         "dropped_s": r(fs.ground_s)})
+        if len(fs.airborne) > 1:
+            airborne[-1]["windows"] = [[r(a), r(b)] for a, b in fs.airborne]
+        gaps += [{"flight": name, "from": r(a), "to": r(b)} for a, b in fs.gaps]
+        for seg in fs.segments:
+            segments.append({"flight": name, "window": [r(x) for x in seg.window], "samples": len(seg.rows),
+                             "used": seg.used, **({"note": seg.note} if seg.note else {})})
+    return {"airborne": airborne, "time_gaps": gaps, "segments": segments}
 
 
 def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None) -> None:

@@ -54,40 +54,71 @@ class Prepared:
     y: np.ndarray  # (N, 6)
     sd: np.ndarray  # (N, 6)
     t: np.ndarray
-    flight: np.ndarray  # flight index per sample
+    flight: np.ndarray  # per sample: index of its state table (a flight, or a segment of one)
     train: np.ndarray  # bool
     test: np.ndarray  # bool
     block: np.ndarray  # block id per training sample (-1 elsewhere)
-    windows: list[dict]  # per flight: train/test windows in flight time
+    windows: list[dict]  # per flight: train/test windows in the flight's own time
+
+
+def flight_of(states_list: list[pd.DataFrame]) -> list[int]:
+    """The flight each state table belongs to: ``attrs["flight"]`` for a segment of one, else its position."""
+    return [int(st.attrs.get("flight", i)) for i, st in enumerate(states_list)]
+
+
+def _cut(spans: list[tuple[float, float]], fraction: float) -> float:
+    """The time at which ``fraction`` of the segments' summed duration lies before it (inside a segment)."""
+    target, acc = fraction * sum(b - a for a, b in spans), 0.0
+    for a, b in spans:
+        if acc + (b - a) >= target:
+            return a + (target - acc)
+        acc += b - a
+    return spans[-1][1]
 
 
 def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Prepared:
-    parts, blocks_next = [], 0
-    windows = []
-    for i, st in enumerate(states_list):
+    """Stack state tables: each is trimmed by ``trim_s`` at both ends (filter transients), cut in blocks.
+
+    A table with ``attrs["flight"]`` is one gap-free segment of that flight (``qr.segments``):
+    each flight is split once, at ``train_fraction`` of its segments' summed (trimmed) time,
+    with ``gap_s`` between its training and test samples; a block never spans two segments.
+    """
+    owner = flight_of(states_list)
+    keeps = []
+    for st in states_list:
         t = st["t"].to_numpy()
-        keep = (t >= t[0] + cfg.trim_s) & (t <= t[-1] - cfg.trim_s)
+        keeps.append((t >= t[0] + cfg.trim_s) & (t <= t[-1] - cfg.trim_s))
+    cuts, windows = {}, []
+    for f in sorted(set(owner)):
+        spans = [(st["t"].to_numpy()[k][0], st["t"].to_numpy()[k][-1])
+                 for st, k, o in zip(states_list, keeps, owner) if o == f and k.any()]
+        if not spans:
+            raise ValueError(f"flight {f}: no sample left after trimming trim_s={cfg.trim_s} s at each end")
+        cut = cuts[f] = _cut(spans, cfg.train_fraction)
+        windows.append({"train": [float(spans[0][0]), float(cut - cfg.gap_s / 2)],
+                        "test": [float(cut + cfg.gap_s / 2), float(spans[-1][1])]})
+    parts, blocks_next = [], 0
+    for i, (st, keep) in enumerate(zip(states_list, keeps)):
+        if not keep.any():
+            continue
         st = st[keep].reset_index(drop=True)
-        t = t[keep]
+        t = st["t"].to_numpy()
         s = signals(st)
         y = residuals(s, vehicle)
         if vehicle.effects:  # an extended vehicle: diagnose what its effects leave
             y = y - total_term(vehicle.effects, s, vehicle)
         sd = noise_sd(st, s.R, vehicle, y)
-        t0, t1 = t[0], t[-1]
-        cut = t0 + cfg.train_fraction * (t1 - t0)
+        cut = cuts[owner[i]]
         train = t < cut - cfg.gap_s / 2
         test = t >= cut + cfg.gap_s / 2
         block = np.full(len(t), -1)
-        rel = t[train] - t0
+        rel = t[train] - t[0]
         block[train] = blocks_next + (rel // cfg.block_s).astype(int)
         if train.any():
             used = np.unique(block[train])
             remap = {b: blocks_next + j for j, b in enumerate(used)}
             block[train] = [remap[b] for b in block[train]]
             blocks_next += len(used)
-        windows.append({"train": [float(t0), float(cut - cfg.gap_s / 2)],  # on the flight file's t axis
-                        "test": [float(cut + cfg.gap_s / 2), float(t1)]})
         parts.append((s, y, sd, t, np.full(len(t), i), train, test, block))
     cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
     s_all = Signals(*(np.concatenate([getattr(p[0], f) for p in parts])
@@ -328,13 +359,14 @@ def extended_effects(effects: list[dict]) -> list[dict]:
 
 
 def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
+    """Replay each state table (a flight or a gap-free segment of one) on its own measured rows."""
     out = {"nominal": [], "extended": []}
+    owner = flight_of(states_list)
     for i, (st, meas) in enumerate(zip(states_list, measured_list)):
         meas = meas.set_index("t").reindex(st["t"].to_numpy(), method="nearest", tolerance=1e-6).reset_index()
         for key, eff in (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects))):
             err = replay_mod.replay(st, meas, vehicle, eff, cfg.horizon_s)
-            w = prep.windows[i]
-            err["test"] = err["t"] >= w["test"][0]
+            err["test"] = err["t"] >= prep.windows[owner[i]]["test"][0]
             err["flight"] = i
             out[key].append(err)
     res = {}

@@ -142,6 +142,7 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
              f"{doc['split']['train'][0]:.1f}-{doc['split']['train'][1]:.1f} s, tested on "
              f"{doc['split']['test'][0]:.1f}-{doc['split']['test'][1]:.1f} s); all numbers below are on the "
              "held-out part.\n")
+    L += _data_used(doc)
     L.append("## How far the nominal model is off\n")
     L.append("| axis | nominal RMSE | extended RMSE | noise floor | extended / noise |")
     L.append("|---|---:|---:|---:|---:|")
@@ -224,6 +225,22 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
     from ..atomic import write_text
 
     write_text(outdir / "report.md", "\n".join(L) + "\n")
+
+
+def _data_used(doc: dict) -> list[str]:
+    """Report lines on the rows left out: ground time, time gaps, unused segments (only when there are any)."""
+    L = []
+    for a in doc.get("airborne", []):
+        if a["dropped_s"] > 0:
+            L.append(f"- `{a['flight']}`: airborne {a['window'][0]:.2f}-{a['window'][1]:.2f} s; "
+                     f"{a['dropped_s']:.1f} s on the ground left out (motors off or idling, or at rest).")
+    for g in doc.get("time_gaps", []):
+        L.append(f"- `{g['flight']}`: no samples from {g['from']:.2f} to {g['to']:.2f} s; the parts before and "
+                 "after are filtered, replayed and cut into blocks separately.")
+    for s in doc.get("segments", []):
+        if not s["used"]:
+            L.append(f"- `{s['flight']}`: segment {s['window'][0]:.2f}-{s['window'][1]:.2f} s not used: {s['note']}.")
+    return (["Data used (times in each flight's own clock):\n", *L, ""]) if L else []
 
 
 def make_figures(outdir: Path, res: dict, vehicle) -> dict:
