@@ -50,6 +50,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
                   return_result: bool = False, reports: list | None = None, figures: bool = True):
     from ..atomic import atomic_dir, write_json
     from ..config import to_dict
+    from ..estimation.settings import resolve as resolve_filter
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
     from .core import DiagnoseConfig, diagnose, extended_effects
@@ -59,6 +60,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     cfg = _compose(overrides)
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
+    resolve_filter(to_dict(cfg.filter))  # the filter settings too, before any work
     vehicle = load_vehicle(vehicle)
     out = Path(out)
     if out.exists() and not out.is_dir():
