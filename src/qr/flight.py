@@ -180,7 +180,7 @@ def _check_columns(path, cols):
         hints = []
         for m in missing:
             close = difflib.get_close_matches(m, [c for c in cols if c not in REQUIRED], n=1, cutoff=0.5)
-            hints.append(f"'{m}'" + (f" (found '{close[0]}': misspelled?)" if close else ""))
+            hints.append(f"'{m}'" + (f" (found {close[0]!r}: misspelled?)" if close else ""))
         raise _error(path, f"missing column(s) {', '.join(hints)}",
                      f"the header must contain {', '.join(REQUIRED)} (../shared/spec/flight-log.md)")
 

@@ -127,7 +127,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         hints = []
         for k in missing:
             close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
-            hints.append(f"'{k}'" + (f" (found '{close[0]}')" if close else ""))
+            hints.append(f"'{k}'" + (f" (found {close[0]!r})" if close else ""))
         raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
                            "add them as in ../shared/spec/flight-log.md")
     raw = dict(raw)
