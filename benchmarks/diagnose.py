@@ -25,7 +25,7 @@ from qr.vehicle import load_vehicle  # noqa: E402
 
 def case(tmp: Path, duration: float, rate: float, tag: str) -> float:
     vehicle = load_vehicle(vehicle_path("asctec_hummingbird"))
-    effects = [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15"), parse_effect_spec("cg_offset:rx=0.01")]
+    effects = [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15"), parse_effect_spec("cg_offset:rx=0.01,ry=0")]
     t0 = time.perf_counter()
     write_synth(tmp / tag, vehicle, effects, SynthConfig(duration=duration, rate=rate, seed=1))
     t_synth = time.perf_counter() - t0

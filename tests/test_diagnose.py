@@ -180,7 +180,7 @@ def test_a_simpler_effect_nested_in_a_richer_one_is_named_first(tmp_path):
     barely changes) and gains most; ``thrust_gain`` is nested in it and must be named
     first, so that the body-frame force is left with its true x/y parts and no z part.
     """
-    effects, doc, floor = _case(tmp_path, ["thrust_gain", "body_force_bias:bx=0.06,by=-0.05"], seed=6)
+    effects, doc, floor = _case(tmp_path, ["thrust_gain", "body_force_bias:bx=0.06,by=-0.05,bz=0"], seed=6)
     named = {e["name"]: e["parameters"] for e in doc["effects"]}
     assert sorted(named) == ["body_force_bias", "thrust_gain"], doc["selection"]
     steps = [s for s in doc["selection"]["steps"] if s.get("accepted")]

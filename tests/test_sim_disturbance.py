@@ -56,7 +56,8 @@ def test_fit_linear_recovers_a_linear_force():
 
 def test_catalog_force_is_the_effect_terms(hummingbird):
     s = _signals()
-    cf = CatalogForce([parse_effect_spec("linear_drag:kx=0.3"), parse_effect_spec("wind_force:fz=-0.5")], hummingbird)
+    cf = CatalogForce([parse_effect_spec("linear_drag:kx=0.3,ky=0,kz=0"),
+                       parse_effect_spec("wind_force:fx=0,fy=0,fz=-0.5")], hummingbird)
     expected = -0.3 * s.v_b * [1, 0, 0] + np.einsum("nji,j->ni", s.R, [0, 0, -0.5])
     np.testing.assert_allclose(cf.predict(s), expected, atol=1e-12)
 

@@ -21,7 +21,7 @@ def _hover(p=(0.0, 0.0, 1.0), duration=6.0):
 
 def test_steady_offset_under_a_constant_wind_is_f_over_m_kp(hummingbird):
     """Independent expectation: at hover a world force f leaves the LQR an offset f / (m k_p)."""
-    wind = [parse_effect_spec("wind_force:fx=0.5,fy=-0.25")]
+    wind = [parse_effect_spec("wind_force:fx=0.5,fy=-0.25,fz=0")]
     kp = lqr_gain()[0, 0]
     res = fly(_hover(), Plant(hummingbird, wind), None)
     end = res.log.iloc[-1]
@@ -94,7 +94,7 @@ def test_same_config_same_numbers(hummingbird):
 
     sim = {"vehicle": "asctec_hummingbird", "duration": 3.0, "identification": {"duration_s": 10.0, "seed": 1,
                                                                                "accel_noise_m_s2": 0.1},
-           "sources": {"dw": {"plant": {"effects": ["wind_force:fx=0.3"]},
+           "sources": {"dw": {"plant": {"effects": ["wind_force:fx=0.3,fy=0,fz=0"]},
                               "estimates": {"fit": {"model": "fit_linear", "inputs": ["v_b", "u"]}}}}}
     a, _ = tracking_study(sim, progress=False)
     b, _ = tracking_study(sim, progress=False)

@@ -18,7 +18,8 @@ def synth_dir(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("synth") / "s1"
     status = main(["synth", "--vehicle", str(HB), "--duration", "60", "--rate", "100", "--seed", "1",
-                   "--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.1", "--effect", "cg_offset:rx=0.01", "--out", str(out)])
+                   "--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.1", "--effect", "cg_offset:rx=0.01,ry=0",
+                   "--out", str(out)])
     assert status == 0
     return out
 
@@ -65,7 +66,7 @@ def test_noise_and_dropouts_match_the_settings(synth_dir):
 def test_same_seed_same_flight(tmp_path, capsys):
     for name in ("a", "b"):
         status, _, err = run_cli(["synth", "--vehicle", HB, "--duration", "10", "--seed", "5",
-                                  "--effect", "wind_force:fx=0.3", "--out", tmp_path / name], capsys)
+                                  "--effect", "wind_force:fx=0.3,fy=0,fz=0", "--out", tmp_path / name], capsys)
         assert status == 0, err
     assert (tmp_path / "a" / "flight.csv").read_bytes() == (tmp_path / "b" / "flight.csv").read_bytes()
     status, _, _ = run_cli(["synth", "--vehicle", HB, "--duration", "10", "--seed", "6", "--out", tmp_path / "c"],
@@ -86,7 +87,7 @@ def test_low_passes_and_yaw_spin(tmp_path, capsys):
 
 def test_extended_vehicle_effects_are_simulated(tmp_path, capsys):
     raw = yaml.safe_load(HB.read_text())
-    raw["effects"] = [{"name": "body_force_bias", "parameters": {"bz": 0.5}}]
+    raw["effects"] = [{"name": "body_force_bias", "parameters": {"bx": 0, "by": 0, "bz": 0.5}}]
     ext = tmp_path / "extended.yaml"
     ext.write_text(yaml.safe_dump(raw))
     status, _, err = run_cli(["synth", "--vehicle", ext, "--duration", "5", "--out", tmp_path / "e"], capsys)

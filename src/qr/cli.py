@@ -20,7 +20,7 @@ examples:
   qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
       --vehicle conf/vehicle/crazyflie21_brushless.yaml --out flight.csv
   qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 --rate 100 --seed 1 \\
-      --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01 --out synth1
+      --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01,ry=0 --out synth1
   qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
@@ -72,7 +72,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
-                   help="hidden effect in the TRUE plant (repeatable)")
+                   help="hidden effect in the TRUE plant, every parameter given (repeatable)")
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     s.add_argument("--noise-free", action="store_true", help="log the true states without noise or dropouts")
@@ -130,6 +130,31 @@ def _cmd_ingest(a):
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
 
 
+def _check_synth_arguments(a):
+    """Every number of ``qr synth`` in its range, before anything is simulated."""
+    from .allowed import allowed
+    from .sim.synth import NoiseConfig
+
+    noise = NoiseConfig()
+    ranges = {  # option: (allowed values, default)
+        "duration": (allowed(gt=0, le=3600), 60.0),  # s; an hour at 100 Hz is 360 000 rows
+        "rate": (allowed(gt=0, le=10000), 100.0),  # Hz
+        "position_noise": (allowed(ge=0), noise.position_std),
+        "attitude_noise": (allowed(ge=0), noise.attitude_std),
+        "rotor_noise": (allowed(ge=0), noise.rotor_std),
+        # the first and last rows are never blanked, so 1 could never be reached
+        "dropout": (allowed(ge=0, lt=1), noise.dropout),
+        "v_max": (allowed(ge=0), 2.5),
+        "tilt_max": (allowed(ge=0, le=60), 25.0),  # degrees; the nominal controller's reach
+        "yaw_rate": (allowed(), 0.0),
+        "seed": (allowed("integer", ge=0), 0),
+    }
+    for name, (rule, default) in ranges.items():
+        val = getattr(a, name)
+        if val is not None:
+            rule.check(f"--{name.replace('_', '-')}", val, default)
+
+
 def _cmd_synth(a):
     from dataclasses import replace
 
@@ -138,11 +163,9 @@ def _cmd_synth(a):
     from .sim.trajectory import TrajectoryConfig
     from .vehicle import load_vehicle
 
+    _check_synth_arguments(a)
     vehicle = load_vehicle(a.vehicle)
-    effects = [parse_effect_spec(e) for e in a.effect]
-    for name, val in (("duration", a.duration), ("rate", a.rate)):
-        if not val > 0:
-            raise QrInputError(f"--{name}", f"{name} must be positive, got {val}", f"give a positive --{name}")
+    effects = [parse_effect_spec(e, vehicle) for e in a.effect]
     noise = NoiseConfig()
     for field, val in (("position_std", a.position_noise), ("attitude_std", a.attitude_noise),
                        ("rotor_std", a.rotor_noise), ("dropout", a.dropout)):

@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from .allowed import is_number
 from .errors import QrInputError
 from .frames import GRAVITY, skew
 
@@ -257,6 +258,9 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
 ]}
 
 
+MAX_DELAY_S = 0.1  # longest plausible actuator delay (s); also bounds the diagnosis's exact-delay search
+
+
 def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
     """Parameter ranges a physical vehicle can have (generous: they only rule out nonsense).
 
@@ -283,7 +287,7 @@ def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
         "torque_bias": ([-0.25 * mg * arm] * 3, [0.25 * mg * arm] * 3),
         "yaw_torque_gain": ([0.5], [1.5]),
         "inertia_error": (list(-0.5 * J), list(1.0 * J)),
-        "actuator_delay": ([0], [0.1]),
+        "actuator_delay": ([0], [MAX_DELAY_S]),
         "marker_offset": ([-2 * arm] * 3, [2 * arm] * 3),
         "blade_flapping": ([-20 * m * arm], [20 * m * arm]),
     }
@@ -299,44 +303,94 @@ def get(name: str, path=None) -> Effect:
     return CATALOG[name]
 
 
-def parse_effect_spec(spec: str) -> dict:
-    """``'linear_drag:kx=0.3,ky=0.3'`` -> ``{'name': 'linear_drag', 'parameters': {...}}``.
+def parameter_ranges(eff: Effect, vehicle=None) -> str:
+    """``'kx, ky, kz in [0, 14] N s/m'``: the parameters, with the vehicle's plausible ranges if given."""
+    if vehicle is None:
+        return ", ".join(eff.params)
+    lo, hi = plausible_bounds(eff.name, vehicle)
+    groups: dict[str, list[str]] = {}  # parameters sharing a range are listed once
+    for p, a, b, u in zip(eff.params, lo, hi, eff.units):
+        groups.setdefault(f"[{a:.3g}, {b:.3g}]" + (f" {u}" if u != "-" else ""), []).append(p)
+    parts = [f"{', '.join(ps)}{' each' if len(ps) > 1 else ''} in {r}" for r, ps in groups.items()]
+    neutral = ", ".join(f"{p}={n:g}" for p, n in zip(eff.params, eff.neutral))
+    return f"{'; '.join(parts)} (no effect: {neutral})"
 
-    Parameters left out take their neutral value (no effect on that axis).
+
+def check_parameters(eff: Effect, params, vehicle=None, where=None, form: str | None = None) -> dict:
+    """All of ``eff``'s parameters as finite numbers, within ``vehicle``'s plausible ranges if given.
+
+    Every parameter is required: a left-out one is more often a typo than a wish for its
+    neutral value.  ``form`` shows how to write them (the ``--effect`` spec or the YAML entry).
+    """
+    form = form or f"{eff.name} parameters " + ", ".join(eff.params)
+    fix = f"write {form} with {parameter_ranges(eff, vehicle)}"
+    params = {} if params is None else params
+    if not isinstance(params, dict):
+        raise QrInputError(where, f"effect {eff.name} has parameters {params!r}, not a mapping of names to values",
+                           fix)
+    unknown = [str(k) for k in params if k not in eff.params]
+    if unknown:
+        raise QrInputError(where, f"{', '.join(repr(k) for k in unknown)} is not a parameter of {eff.name}", fix)
+    missing = [p for p in eff.params if p not in params]
+    if missing:
+        given = f"only {', '.join(p for p in eff.params if p in params)} given" if len(missing) < len(eff.params) \
+            else "none given"
+        raise QrInputError(where, f"effect {eff.name} lacks parameter(s) {', '.join(missing)} ({given})", fix)
+    out = {}
+    for p in eff.params:
+        v = params[p]
+        if not is_number(v) or not np.isfinite(v):
+            raise QrInputError(where, f"effect {eff.name} parameter {p} is {v!r}, not a finite number", fix)
+        out[p] = float(v)
+    if vehicle is not None:
+        lo, hi = plausible_bounds(eff.name, vehicle)
+        tol = 1e-9 * (np.abs(lo) + np.abs(hi))  # a bounded fit may land on a bound to rounding
+        for p, a, b, t in zip(eff.params, lo, hi, tol):
+            if not a - t <= out[p] <= b + t:
+                raise QrInputError(where, f"effect {eff.name} parameter {p}={out[p]:g} is outside the range "
+                                          f"[{a:.3g}, {b:.3g}] a physical {vehicle.name} can have", fix)
+    return out
+
+
+def parse_effect_spec(spec: str, vehicle=None) -> dict:
+    """``'linear_drag:kx=0.3,ky=0.3,kz=0.1'`` -> ``{'name': 'linear_drag', 'parameters': {...}}``.
+
+    Every parameter must be given; with ``vehicle``, within its plausible range (:func:`plausible_bounds`).
     """
     name, _, rest = spec.partition(":")
     eff = get(name.strip(), "--effect")
+    form = f"--effect {eff.name}:" + ",".join(f"{p}=VALUE" for p in eff.params)
     params = {}
     for item in filter(None, (x.strip() for x in rest.split(","))):
         key, eq, val = item.partition("=")
         key = key.strip()
         if not eq or key not in eff.params:
             raise QrInputError("--effect", f"'{item}' is not a parameter of {eff.name}",
-                               f"write {eff.name}:" + ",".join(f"{p}=VALUE" for p in eff.params))
+                               f"write {form} with {parameter_ranges(eff, vehicle)}")
         try:
             params[key] = float(val)
         except ValueError:
-            raise QrInputError("--effect", f"{eff.name} parameter {key}={val!r} is not a number",
-                               "give numbers in SI units") from None
-    full = {p: params.get(p, float(n)) for p, n in zip(eff.params, eff.neutral)}
-    return {"name": eff.name, "parameters": full}
+            raise QrInputError("--effect", f"{eff.name} parameter {key}={val.strip()!r} is not a number",
+                               f"write {form} with {parameter_ranges(eff, vehicle)}") from None
+    return {"name": eff.name, "parameters": check_parameters(eff, params, vehicle, "--effect", form)}
 
 
-def validate_effect_list(effects, path=None) -> list[dict]:
+def validate_effect_list(effects, path=None, vehicle=None) -> list[dict]:
+    """``[{name, parameters}, ...]`` checked (every parameter a finite number; in range with ``vehicle``)."""
     out = []
     if not isinstance(effects, list):
-        raise QrInputError(path, "'effects' is not a list", "write effects as a list of {name, parameters}")
+        raise QrInputError(path, f"'effects' is {effects!r}, not a list",
+                           "write effects as a list of {name: ..., parameters: {...}}")
     for e in effects:
         if not isinstance(e, dict) or "name" not in e:
-            raise QrInputError(path, f"effect entry {e!r} has no name", "write {name: ..., parameters: {...}}")
+            raise QrInputError(path, f"effect entry {e!r} is not a mapping with a name",
+                               "write each effect as {name: ..., parameters: {...}}")
+        if not isinstance(e["name"], str):
+            raise QrInputError(path, f"effect name {e['name']!r} is not a catalog name",
+                               f"use one of {', '.join(CATALOG)}")
         eff = get(e["name"], path)
-        params = e.get("parameters", {}) or {}
-        bad = [k for k in params if k not in eff.params]
-        if bad:
-            raise QrInputError(path, f"effect {eff.name} has unknown parameter(s) {bad}",
-                               f"its parameters are {', '.join(eff.params)}")
-        out.append({"name": eff.name, "parameters": {p: float(params.get(p, n))
-                                                      for p, n in zip(eff.params, eff.neutral)}})
+        form = f"{{name: {eff.name}, parameters: {{" + ", ".join(f"{p}: VALUE" for p in eff.params) + "}}"
+        out.append({"name": eff.name, "parameters": check_parameters(eff, e.get("parameters"), vehicle, path, form)})
     return out
 
 

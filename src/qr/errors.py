@@ -16,7 +16,8 @@ class QrInputError(Exception):
         self.problem = problem
         self.fix = fix
         where = f"{self.path}: " if self.path else ""
-        super().__init__(f"{where}{problem}; fix: {fix}")
+        # one line whatever the input held (a header cell or YAML key with a line break)
+        super().__init__(" ".join(f"{where}{problem}; fix: {fix}".splitlines()))
 
 
 class QrInputWarning(UserWarning):

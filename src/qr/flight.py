@@ -7,7 +7,11 @@ the exchange format; Parquet is the fast format between workflow stages.
 
 from __future__ import annotations
 
+import csv
 import difflib
+import gzip
+import io
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -31,38 +35,126 @@ def _error(path, problem, fix):
 
 
 def read_flight(path: str | Path, vehicle=None) -> pd.DataFrame:
-    """Read a canonical CSV or Parquet flight, validated and normalised."""
+    """Read a canonical CSV or Parquet flight, validated and normalised.
+
+    The format is told by the content, not the name (a Parquet file named ``.csv`` reads as
+    Parquet; gzip-compressed CSV is decompressed).  ``df.attrs['source']`` names the file.
+    """
     path = Path(path)
     if not path.exists():
         raise _error(path, "flight file does not exist", "check the path")
-    if path.stat().st_size == 0:
+    if path.is_dir():
+        inside = sorted(p.name for p in path.iterdir() if p.suffix in (".csv", ".parquet"))[:3]
+        raise _error(path, "is a folder, not a flight file",
+                     "give the flight's CSV or Parquet file" + (f" (it holds {', '.join(inside)})" if inside else ""))
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise _error(path, f"flight file cannot be read ({e.strerror})", "check its permissions") from None
+    if not data:
         raise _error(path, "flight file is empty", "give a CSV with a header row and one row per sample")
-    if path.suffix == ".parquet":
-        df = pd.read_parquet(path)
+    if data[:2] == GZIP_MAGIC:
+        try:
+            data = gzip.decompress(data)
+        except (OSError, EOFError, zlib.error):
+            raise _error(path, "gzip-compressed file is truncated or damaged", "copy or compress it again") from None
+    if data[:4] == PARQUET_MAGIC:
+        df = _read_parquet(path, data)
     else:
-        df = _read_csv(path)
-    return validate_flight(df, path, vehicle)
+        df = _read_csv(path, _text(path, data))
+    df = validate_flight(df, path, vehicle)
+    df.attrs["source"] = str(path)
+    return df
 
 
-def _read_csv(path: Path) -> pd.DataFrame:
+GZIP_MAGIC, PARQUET_MAGIC = b"\x1f\x8b", b"PAR1"
+OTHER_FORMATS = {b"PK\x03\x04": "a zip archive", b"BZh": "bzip2-compressed", b"\xfd7zXZ": "xz-compressed",
+                 b"\x28\xb5\x2f\xfd": "zstd-compressed", b"\x89HDF": "an HDF5 file", b"ULog": "a PX4 ULog",
+                 b"#ROSBAG": "a ROS bag"}
+DELIMITERS = {";": "semicolons", "\t": "tabs", "|": "vertical bars", " ": "spaces"}
+
+
+def _read_parquet(path: Path, data: bytes) -> pd.DataFrame:
     try:
-        head = pd.read_csv(path, nrows=0)
-    except pd.errors.EmptyDataError:
-        raise _error(path, "flight file is empty", "give a CSV with a header row and one row per sample") from None
-    cols = [str(c).strip() for c in head.columns]
-    _check_columns(path, cols)
+        return pd.read_parquet(io.BytesIO(data))
+    except Exception as e:  # pyarrow raises several types for a damaged file
+        raise _error(path, f"Parquet file cannot be read ({str(e).splitlines()[0][:120]})",
+                     "write it again (a partial or damaged file cannot be trusted), or give the CSV") from None
+
+
+def _text(path: Path, data: bytes) -> str:
+    for magic, what in OTHER_FORMATS.items():
+        if data.startswith(magic):
+            raise _error(path, f"is {what}, not a CSV or Parquet flight",
+                         "extract or convert it to the canonical CSV (qr ingest reads the Crazyflie uSD logs)")
+    if b"\x00" in data[:65536]:
+        raise _error(path, "is a binary file, not a CSV or Parquet flight",
+                     "give the canonical CSV of ../shared/spec/flight-log.md (or a Parquet file)")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[:e.start].count(b"\n") + 1
+        raise _error(path, f"is not UTF-8 text (byte 0x{data[e.start]:02x} at line {line})",
+                     "save the CSV as UTF-8 (the flight columns are plain ASCII)") from None
+
+
+def _header(path: Path, text: str) -> list[str]:
+    try:
+        first = next(csv.reader(io.StringIO(text, newline=""), skipinitialspace=True), [])
+    except csv.Error as e:
+        raise _error(path, f"malformed CSV header ({e})", "write one header row of comma-separated names") from None
+    # an empty name (a trailing comma) gets one, so that two of them are not "the same column"
+    return [c.strip() or f"unnamed_{i + 1}" for i, c in enumerate(first)]
+
+
+def _check_delimiter(path: Path, header: list[str], text: str):
+    """A header that only splits into the spec's names on another character: say which."""
+    if all(c in header for c in REQUIRED):
+        return
+    line = text.splitlines()[0] if text else ""
+    for d, name in DELIMITERS.items():
+        cells = [c.strip() for c in (line.split() if d == " " else line.split(d))]
+        if sum(c in REQUIRED for c in cells) > len(REQUIRED) // 2:
+            raise _error(path, f"the cells are separated by {name}, not commas",
+                         "write a comma-separated file (../shared/spec/flight-log.md), "
+                         "e.g. pandas df.to_csv(path, index=False)")
+
+
+def _check_row_lengths(path: Path, text: str, n: int):
+    """Every row has the header's number of cells (pandas would shift or cut a longer row, pad a shorter one)."""
+    try:
+        for line, row in enumerate(csv.reader(io.StringIO(text, newline=""), skipinitialspace=True), 1):
+            if row and len(row) != n:
+                raise _error(path, f"line {line} has {len(row)} cells, the header {n}"
+                                   + (" (a truncated line?)" if len(row) < n else ""),
+                             "every row needs one comma-separated cell per header column (empty for a dropout)")
+    except csv.Error as e:
+        raise _error(path, f"malformed CSV ({e})", "write plain comma-separated numbers") from None
+
+
+def _read_csv(path: Path, text: str) -> pd.DataFrame:
+    if not text.strip():
+        raise _error(path, "flight file is empty", "give a CSV with a header row and one row per sample")
+    cols = _header(path, text)
+    _check_delimiter(path, cols, text)
+    _check_columns(path, cols)  # on the header itself: pandas renames a repeated name (px, px.1)
+    _check_row_lengths(path, text, len(cols))
     numeric = [c for c in cols if c in REQUIRED or c in OPTIONAL]
+    opts = dict(header=0, names=cols, skipinitialspace=True, index_col=False)
     try:
-        df = pd.read_csv(path, dtype={c: "float64" for c in numeric}, skipinitialspace=True)
-    except (ValueError, TypeError):
-        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
-        df.columns = cols
+        df = pd.read_csv(io.StringIO(text), dtype={c: "float64" for c in numeric}, **opts)
+    except (ValueError, TypeError, OverflowError) as e:
+        if isinstance(e, pd.errors.ParserError):
+            raise _error(path, f"malformed CSV ({str(e).splitlines()[0]})",
+                         "every row needs as many comma-separated cells as the header") from None
+        try:
+            df = pd.read_csv(io.StringIO(text), dtype=str, keep_default_na=False, **opts)
+        except (ValueError, TypeError) as e2:
+            raise _error(path, f"malformed CSV ({str(e2).splitlines()[0]})",
+                         "every row needs as many comma-separated cells as the header") from None
         _raise_first_non_numeric(path, df, numeric)
-        raise _error(path, "the CSV cannot be parsed as numbers", "write one number per cell, comma separated")
-    except pd.errors.ParserError as e:
-        raise _error(path, f"malformed CSV ({str(e).splitlines()[0]})",
-                     "every row needs as many comma-separated cells as the header") from None
-    df.columns = cols
+        raise _error(path, "the CSV cannot be parsed as numbers",
+                     "write one number per cell, comma separated") from None
     if len(df) == 0:
         raise _error(path, "flight file has a header but no samples", "export the flight's rows too")
     return df
@@ -88,7 +180,7 @@ def _check_columns(path, cols):
         hints = []
         for m in missing:
             close = difflib.get_close_matches(m, [c for c in cols if c not in REQUIRED], n=1, cutoff=0.5)
-            hints.append(f"'{m}'" + (f" (found '{close[0]}': misspelled?)" if close else ""))
+            hints.append(f"'{m}'" + (f" (found {close[0]!r}: misspelled?)" if close else ""))
         raise _error(path, f"missing column(s) {', '.join(hints)}",
                      f"the header must contain {', '.join(REQUIRED)} (../shared/spec/flight-log.md)")
 
@@ -115,7 +207,7 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
     if not np.isfinite(t).all():
         i = int(np.flatnonzero(~np.isfinite(t))[0])
         what = "missing" if np.isnan(t[i]) else f"{t[i]} (not a number of seconds)"
-        raise _error(path, f"time stamp {what} at data row {i + 1}", "every row needs a time stamp t (s)")
+        raise _error(path, f"time stamp {what} at data row {i + 1}", "every row needs a finite time stamp t (s)")
     dt = np.diff(t)
     if (dt == 0).any():
         i = int(np.flatnonzero(dt == 0)[0])
@@ -129,7 +221,8 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
     _infinite_to_dropouts(path, df, [c for c in cols if c in REQUIRED[1:] or c in OPTIONAL])
 
     q = df[QUATERNION].to_numpy()
-    n = np.linalg.norm(q, axis=1)
+    with np.errstate(over="ignore"):  # absurd values overflow to inf, refused below
+        n = np.linalg.norm(q, axis=1)
     far = np.isfinite(n) & (np.abs(n - 1.0) > QUAT_NORM_TOL)
     if far.any():
         i = int(np.flatnonzero(far)[0])
@@ -145,6 +238,7 @@ def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:
         r, c = np.argwhere(u < 0)[0]
         raise _error(path, f"negative rotor speed {u[r, c]:g} in '{ROTORS[c]}' at data row {r + 1}",
                      "give rotor speed magnitudes (the layout's yaw_sign carries the direction)")
+    check_not_frozen(df, path)
     if vehicle is not None:
         check_hover_ratio(df, vehicle, path)
 
@@ -192,6 +286,23 @@ def _infinite_to_dropouts(path, df: pd.DataFrame, cols: list[str]) -> None:
          "check the logger; blank cells mark dropouts")
 
 
+def check_not_frozen(df: pd.DataFrame, path=None, rotors: bool = False) -> None:
+    """Refuse a measured signal that never changes: a frozen stream, not a measurement.
+
+    Motion capture always carries noise, so an attitude (or position) identical in every
+    sample is a stuck stream; the filters cannot estimate noise or rates from it.  ``rotors``:
+    also refuse four rotor speeds that never change (``filter=auto`` needs their noise too).
+    """
+    groups = [("position", POSITION), ("attitude", QUATERNION)] + ([("rotor speeds", ROTORS)] if rotors else [])
+    for name, cols in groups:
+        a = df[cols].to_numpy(dtype=float)
+        ok = np.isfinite(a).all(axis=1)
+        if ok.sum() > 1 and np.all(a[ok] == a[ok][0]):
+            raise _error(path, f"every sample has the same {name} ({', '.join(cols)}): it never changes, "
+                               "as from a frozen stream",
+                         "check the recording: a real measurement always varies, at least by the sensor noise")
+
+
 def hover_ratio(df: pd.DataFrame, vehicle) -> float:
     """Median rotor-map thrust over m g while the rotors work: near 1 for a flight with consistent units.
 
@@ -202,7 +313,10 @@ def hover_ratio(df: pd.DataFrame, vehicle) -> float:
     ok = np.isfinite(u).all(axis=1)
     if not ok.any():
         return float("nan")
-    T, _ = vehicle.rotors.thrust_torque(u[ok])
+    with np.errstate(over="ignore", invalid="ignore"):  # absurd speeds give inf: a ratio out of range
+        T, _ = vehicle.rotors.thrust_torque(u[ok])
+    if not np.isfinite(T).all():
+        return float("inf")
     high = np.percentile(T, 99)
     if high <= 0:
         return float("nan")  # the rotors never turn: no unit to check
@@ -212,7 +326,7 @@ def hover_ratio(df: pd.DataFrame, vehicle) -> float:
 def check_hover_ratio(df, vehicle, path=None):
     ratio = hover_ratio(df, vehicle)
     lo, hi = HOVER_RATIO_LIMITS
-    if np.isfinite(ratio) and not lo <= ratio <= hi:
+    if not np.isnan(ratio) and not lo <= ratio <= hi:
         unit = vehicle.rotor_speed_unit
         other = "rad_s" if unit == "rpm" else "rpm"
         # speeds logged in the other unit: rescaling them to the declared unit rescales T by this

@@ -66,11 +66,12 @@ def load_vehicle_any(name_or_path):
     return load_vehicle(p)
 
 
-def parse_effects(items, where) -> list[dict]:
+def parse_effects(items, where, vehicle=None) -> list[dict]:
+    """Catalog effects given as ``'name:p=v,...'`` specs or ``{name, parameters}`` (in range for ``vehicle``)."""
     out = []
     for e in items or []:
-        out.append(parse_effect_spec(e) if isinstance(e, str) else e)
-    return validate_effect_list(out, where)
+        out.append(parse_effect_spec(e, vehicle) if isinstance(e, str) else e)
+    return validate_effect_list(out, where, vehicle)
 
 
 @dataclass
@@ -118,7 +119,7 @@ def build_force(spec: dict, vehicle, source: Source | None, where: str):
         b = scale * np.asarray(spec.get("b", [0, 0, 0]), dtype=float)
         return dist.LinearForce(W, b, tuple(spec["inputs"]), name, float(spec.get("u_scale", 1.0)))
     if kind == "effects":
-        return dist.CatalogForce(parse_effects(spec.get("effects"), where), vehicle, name)
+        return dist.CatalogForce(parse_effects(spec.get("effects"), where, vehicle), vehicle, name)
     if kind == "extended_vehicle":
         nominal, effects = dist.extended_vehicle(_path(spec, where))
         return dist.CatalogForce(effects, nominal, name)
@@ -152,7 +153,8 @@ def _no_leak(model, where):
 def build_source(name: str, cfg: dict, sim: dict) -> Source:
     where = f"sim.sources.{name}"
     veh = load_vehicle_any(cfg.get("vehicle") or sim["vehicle"])
-    effects = validate_effect_list(veh.effects, where) + parse_effects((cfg.get("plant") or {}).get("effects"), where)
+    effects = validate_effect_list(veh.effects, where) + parse_effects((cfg.get("plant") or {}).get("effects"), where,
+                                                                       veh)
     nominal = veh.with_changes(effects=[]) if veh.effects else veh
     pc = cfg.get("plant") or {}
     src = Source(name, nominal, Plant(nominal, effects), dict(cfg.get("estimates") or {}),

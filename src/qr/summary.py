@@ -6,19 +6,21 @@ import numpy as np
 import pandas as pd
 
 from .dynamics import thrust_torque
+from .errors import QrInputError
 from .estimation.savgol import derivatives
 from .flight import POSITION, QUATERNION, ROTORS, dropouts, hover_ratio
 from .frames import GRAVITY, quat_to_rot, to_world
 
 
-def flight_summary(df: pd.DataFrame, vehicle, name: str) -> dict:
+def flight_summary(df: pd.DataFrame, vehicle, name: str, source=None) -> dict:
     """Duration, rate, rows, dropouts, hover thrust ratio and the mean residual force (world frame).
 
     The residual uses Savitzky-Golay accelerations of the mocap position (21
     samples at 100 Hz, cubic) and raw rotor speeds: a pre-filter look, good for
-    means, not for per-sample labels.
+    means, not for per-sample labels.  ``source``: the file, named in errors.
     """
     t = df["t"].to_numpy()
+    _check_long_enough(df, source or df.attrs.get("source") or name)
     drop = dropouts(df)
     a_w = derivatives(t, df[POSITION].to_numpy(), order=2)
     q = df[QUATERNION].to_numpy()
@@ -44,6 +46,24 @@ def flight_summary(df: pd.DataFrame, vehicle, name: str) -> dict:
         "mean_fa_world_z": float(mean_f[2]),
         "std_fa_world_z": float(f_w[:, 2].std()),
     }
+
+
+def _check_long_enough(df, source):
+    from .estimation.savgol import uniform_grid, window
+
+    t = df["t"].to_numpy()
+    fix = "summarise a complete flight (seconds of samples), not a fragment"
+    if len(t) < 2:
+        raise QrInputError(source, f"flight has only {len(t)} sample: no rate, no accelerations", fix)
+    n_pos = int(np.isfinite(df[POSITION].to_numpy()).all(axis=1).sum())
+    need = window(uniform_grid(t))
+    if len(uniform_grid(t)) < need or n_pos < need:
+        raise QrInputError(source, f"flight has {len(t)} samples, {n_pos} with a position; the summary's "
+                                   f"accelerations need at least {need} (a 0.21 s Savitzky-Golay window)", fix)
+    ok = np.isfinite(df[QUATERNION].to_numpy()).all(axis=1) & np.isfinite(df[ROTORS].to_numpy()).all(axis=1)
+    if not ok.any():
+        raise QrInputError(source, "no sample has both an attitude and four rotor speeds",
+                           "check the log: the summary's residual force needs both")
 
 
 def write_ingest_summary(sets: dict, vehicles: dict, table_path, by_set_path, figure_path) -> pd.DataFrame:

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import yaml
 
+from .allowed import is_number
 from .atomic import write_text
 from .errors import QrInputError, warn
 from .rotors import RotorMap
@@ -86,17 +88,31 @@ class Vehicle:
         return copy.deepcopy(self.raw)
 
 
-def _number(path, raw, key, positive=True):
+def _number(path, raw, key, positive=True, minimum=None):
     val = raw[key]
-    try:
-        x = float(val)
-    except (TypeError, ValueError):
+    if not is_number(val):
         raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a number",
-                           f"give '{key}' as a number in SI units") from None
+                           f"give '{key}' as a number in SI units (no quotes)")
+    x = float(val)
     if not math.isfinite(x) or (positive and x <= 0):
         raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a positive number",
                            f"set '{key}' to its physical (positive) value")
+    if minimum is not None and x < minimum:
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, below {minimum:g}",
+                           f"set '{key}' to its physical value (at least {minimum:g})")
     return x
+
+
+def _layout_entry(path, i, r):
+    if not isinstance(r, dict) or not {"x", "y", "yaw_sign"} <= set(r):
+        raise QrInputError(path, f"layout rotor {i} is {r!r}",
+                           "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}")
+    for k in ("x", "y", "yaw_sign"):
+        if not is_number(r[k]) or not math.isfinite(r[k]):
+            raise QrInputError(path, f"layout rotor {i} has {k}: {r[k]!r}, not a number",
+                               "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}, numbers without quotes")
+    if float(r["yaw_sign"]) not in (-1.0, 1.0):
+        raise QrInputError(path, f"layout rotor {i} has yaw_sign {r['yaw_sign']!r}", "yaw_sign is +1 or -1")
 
 
 def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
@@ -111,7 +127,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         hints = []
         for k in missing:
             close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
-            hints.append(f"'{k}'" + (f" (found '{close[0]}')" if close else ""))
+            hints.append(f"'{k}'" + (f" (found {close[0]!r})" if close else ""))
         raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
                            "add them as in ../shared/spec/flight-log.md")
     raw = dict(raw)
@@ -123,11 +139,10 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
     if not (isinstance(inertia, (list, tuple)) and len(inertia) == 3):
         raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
                            "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
-    try:
-        J = np.array([float(x) for x in inertia])
-    except (TypeError, ValueError):
+    if not all(is_number(x) for x in inertia):
         raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
-                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2") from None
+                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
+    J = np.array([float(x) for x in inertia])
     if not np.all(np.isfinite(J)) or np.any(J <= 0):
         raise QrInputError(path, f"vehicle inertia {[float(x) for x in J]} has a non-positive entry",
                            "give positive principal inertias in kg m^2")
@@ -141,7 +156,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
                  "(the thesis's Table 4.1 value is such an error)")
             break
     unit = raw["rotor_speed_unit"]
-    if unit not in SPEED_UNITS:
+    if not isinstance(unit, str) or unit not in SPEED_UNITS:
         raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
                            f"use one of {', '.join(SPEED_UNITS)}")
     layout = raw["layout"]
@@ -150,13 +165,11 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
             raise QrInputError(path, "layout is neither 'plus' nor a list of four rotors",
                                "write layout: plus, or four entries {x, y, yaw_sign}")
         for i, r in enumerate(layout, 1):
-            if not isinstance(r, dict) or not {"x", "y", "yaw_sign"} <= set(r):
-                raise QrInputError(path, f"layout rotor {i} is {r!r}",
-                                   "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}")
-            if float(r["yaw_sign"]) not in (-1.0, 1.0):
-                raise QrInputError(path, f"layout rotor {i} has yaw_sign {r['yaw_sign']!r}",
-                                   "yaw_sign is +1 or -1")
+            _layout_entry(path, i, r)
     rotors = RotorMap.from_layout(layout, arm, ct, cq)
+    if not np.all(np.isfinite(rotors.matrix)):
+        raise QrInputError(path, "thrust_coeff, torque_coeff and the rotor positions overflow the rotor map",
+                           "give the coefficients and positions in SI units (N per unit^2, m)")
     if abs(np.linalg.det(rotors.matrix)) < 1e-300 or np.linalg.matrix_rank(rotors.matrix) < 4:
         raise QrInputError(path, "layout gives a rotor map that cannot control thrust, roll, pitch and yaw",
                            "check rotor positions and yaw signs (two of each sign, not collinear)")
@@ -164,30 +177,74 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         _number(path, raw, "rotor_speed_max")
     for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
         if k in raw:
-            _number(path, raw, k, positive=(k == "motor_time_constant"))
+            _number(path, raw, k, positive=k == "motor_time_constant", minimum=0 if k == "rotor_speed_min" else None)
     unknown = sorted(set(raw) - KNOWN)
     if unknown:
         warn(path, f"vehicle file has unknown key(s) {unknown} (ignored)", "remove them or check their spelling")
-    if raw.get("effects"):
+    vehicle = Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
+    if raw.get("effects") is not None:
         from .effects import validate_effect_list
-        validate_effect_list(raw["effects"], path)
-    return Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
+        # all parameters given, numbers, and within what this vehicle can physically have
+        raw["effects"] = validate_effect_list(raw["effects"], path, vehicle)
+    return vehicle
 
 
-def _read_yaml(path: Path) -> dict:
+class _Loader(yaml.SafeLoader):
+    """Safe YAML with YAML 1.2 floats: PyYAML reads ``thrust_coeff: 1e-8`` (no dot) as the string '1e-8'."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def _read_yaml(path: Path, chain: tuple = ()) -> dict:
+    """The file's mapping, with ``extends:`` resolved (``chain``: the files that extend this one)."""
     if not path.exists():
         raise QrInputError(path, "vehicle file does not exist", "check the path (vehicles live in conf/vehicle/)")
+    if path.is_dir():
+        raise QrInputError(path, "is a folder, not a vehicle file",
+                           "give the vehicle's YAML file (e.g. conf/vehicle/NAME.yaml)")
     try:
-        raw = yaml.safe_load(path.read_text())
+        data = path.read_bytes()
+    except OSError as e:
+        raise QrInputError(path, f"vehicle file cannot be read ({e.strerror})", "check its permissions") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[:e.start].count(b"\n") + 1
+        raise QrInputError(path, f"vehicle file is not UTF-8 text (byte 0x{data[e.start]:02x} at line {line})",
+                           "save it as UTF-8 (or keep it ASCII)") from None
+    try:
+        raw = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         where = f" at line {line + 1}" if line is not None else ""
         raise QrInputError(path, f"vehicle file is not valid YAML{where}",
                            "fix the syntax (key: value, lists in [ ] or '- ' lines)") from None
+    except RecursionError:  # anchors nested thousands deep
+        raise QrInputError(path, "vehicle file nests too deep", "write a flat 'key: value' file") from None
     if raw is None:
         raise QrInputError(path, "vehicle file is empty", "write the keys of ../shared/spec/flight-log.md")
     if isinstance(raw, dict) and "extends" in raw:
-        base = _read_yaml((path.parent / str(raw["extends"])).resolve())
+        base_name = raw["extends"]
+        if not isinstance(base_name, str) or not base_name.strip():
+            raise QrInputError(path, f"'extends: {base_name!r}' is not a file name",
+                               "give the path of the vehicle this one builds on, relative to this file")
+        base_path = (path.parent / base_name).resolve()
+        here = [*chain, path.resolve()]
+        if base_path in here:
+            cycle = " -> ".join(p.name for p in here[here.index(base_path):] + [base_path])
+            raise QrInputError(path, f"'extends: {base_name}' makes a cycle ({cycle})",
+                               "a vehicle file cannot extend itself, directly or through others: remove one 'extends:'")
+        if not base_path.exists():
+            raise QrInputError(path, f"'extends: {base_name}' names {base_path}, which does not exist",
+                               "give the path of the vehicle this one builds on, relative to this file")
+        base = _read_yaml(base_path, tuple(here))
+        if not isinstance(base, dict):
+            raise QrInputError(base_path, "vehicle file is not a YAML mapping",
+                               "write 'key: value' lines as in ../shared/spec/flight-log.md")
         base.update({k: v for k, v in raw.items() if k != "extends"})
         raw = base
     return raw

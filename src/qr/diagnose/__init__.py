@@ -63,6 +63,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
     from ..atomic import atomic_dir, write_json
     from ..config import to_dict
+    from ..estimation.settings import resolve as resolve_filter
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
     from ..segments import flight_segments
@@ -73,6 +74,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     cfg = _compose(overrides)
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
+    resolve_filter(to_dict(cfg.filter))  # the filter settings too, before any work
     vehicle = load_vehicle(vehicle)
     # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
     measured = [read_flight(f) for f in flights]

@@ -7,7 +7,7 @@ report need.  It does no I/O.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -17,33 +17,12 @@ from ..effects import CATALOG, Signals, plausible_bounds, total_term
 from ..states import signals
 from . import replay as replay_mod
 from .noise import noise_sd
-from .selection import (BlockStats, Columns, SelectionConfig, accumulate, bootstrap, design, fit,
+from .selection import (BlockStats, Columns, accumulate, bootstrap, design, fit,
                         forward_select, loss, solve, torque_arbitration)
+from .settings import DiagnoseConfig  # the settings and their allowed values live in .settings
 
 AXES = ["fx", "fy", "fz", "tx", "ty", "tz"]
 CHUNK = 20000
-
-
-@dataclass
-class DiagnoseConfig:
-    horizon_s: float = 1.0
-    train_fraction: float = 0.7
-    gap_s: float = 1.0
-    block_s: float = 2.0
-    trim_s: float = 0.5
-    candidates: list[str] | None = None  # None: the whole catalog
-    exclude: list[str] = field(default_factory=list)
-    selection: SelectionConfig = field(default_factory=SelectionConfig)
-    remainder_inputs: list[str] = field(default_factory=lambda: ["v_b", "u", "q", "omega", "p"])
-    remainder_min_gain: float = 0.05
-    delay_max_s: float = 0.1
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "DiagnoseConfig":
-        d = dict(d or {})
-        sel = SelectionConfig(**d.pop("selection", {}) or {})
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        return cls(selection=sel, **known)
 
 
 @dataclass

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..effects import CATALOG, Signals
+from .settings import SelectionConfig  # the settings and their allowed values live in .settings
 
 
 @dataclass
@@ -180,24 +181,6 @@ def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -
 
 def loss(G, h, s, n, theta) -> float:
     return float((s - 2 * theta @ h + theta @ G @ theta) / max(n, 1.0))
-
-
-@dataclass
-class SelectionConfig:
-    folds: int = 5
-    min_gain: float = 0.01  # accept an effect only if it cuts the CV loss by this fraction of the current loss
-    min_fold_share: float = 0.8  # ... and helps in at least this share of the folds (the median fold by min_gain)
-    confound_r2: float = 0.9  # a rival whose columns reproduce the winner's fitted term this well ...
-    t_separate: float = 3.0  # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
-    separate_bootstrap: int = 100
-    vif_max: float = 10.0  # a candidate inflating a named effect's parameter variance this much, and moving
-    #                        it by > consistency_rel, trades off with it (collinear on this data)
-    nested_share: float = 0.9  # a simpler candidate nested in the winner, with this share of its gain, leads
-    consistency_t: float = 4.0  # force-only and torque-only fits of one effect may differ by this many s.e. ...
-    consistency_rel: float = 0.3  # ... or by this fraction, before the effect is rejected as inconsistent
-    max_effects: int = 6
-    bootstrap: int = 200
-    seed: int = 0
 
 
 @dataclass

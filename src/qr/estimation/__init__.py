@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import QrInputError
+from ..flight import check_not_frozen
 from ..states import COLUMNS
 from . import attitude_eskf, motor_kf, nis, position_kf
 from .settings import DEFAULTS, FILTERS, resolve
@@ -47,6 +48,7 @@ def _inputs(flight: pd.DataFrame, source):
     if dead:
         raise QrInputError(source, f"rotor speed column(s) {', '.join(dead)} are (almost) empty",
                            "log all four rotor speeds")
+    check_not_frozen(flight, source, rotors=True)  # filter=auto cannot tune on a signal without noise
     return (t, *arrays)
 
 
@@ -68,7 +70,7 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     the noise values used (tuned ones for ``filter=auto``) and NIS statistics.
     """
     s = resolve(cfg)
-    t, P, Qm, U = _inputs(flight, source)
+    t, P, Qm, U = _inputs(flight, source or flight.attrs.get("source"))
     keep = _keep(t, s["nis"]["burn_in_s"])
     speed_scale = float(vehicle.hover_speed) if vehicle is not None else float(np.nanmedian(np.abs(U)))
     meas = {"position": P, "attitude": Qm, "motor": U}

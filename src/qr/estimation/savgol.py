@@ -20,12 +20,17 @@ def _fill(t, y):
     return np.interp(t, t[ok], y[ok])
 
 
+def window(grid: np.ndarray, window_s: float = 0.21, poly: int = 3) -> int:
+    """Samples in the Savitzky-Golay window (odd, at least ``poly + 2``) on a uniform ``grid``."""
+    return max(poly + 2, int(round(window_s / (grid[1] - grid[0]))) | 1)
+
+
 def derivatives(t: np.ndarray, y: np.ndarray, order: int, window_s: float = 0.21, poly: int = 3) -> np.ndarray:
     """``order``-th time derivative of each column of ``y`` (N, k) at stamps ``t``."""
     y = np.asarray(y, dtype=float).reshape(len(t), -1)
     grid = uniform_grid(t)
     dt = grid[1] - grid[0]
-    win = max(poly + 2, int(round(window_s / dt)) | 1)
+    win = window(grid, window_s, poly)
     out = np.empty_like(y)
     for j in range(y.shape[1]):
         yg = np.interp(grid, t, _fill(t, y[:, j]))

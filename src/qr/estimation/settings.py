@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import math
 
+from ..allowed import allowed
 from ..errors import QrInputError
 from . import attitude_eskf, motor_kf, position_kf
 from .chain import DISCRETISATIONS
@@ -32,6 +33,14 @@ DEFAULTS = {
     "vehicle": None,
 }
 FIX = "see conf/filter/thesis.yaml for the keys and their meaning"
+RANGES = {
+    ("nis", "confidence"): allowed(gt=0, lt=1),
+    ("nis", "burn_in_s"): allowed(ge=0),
+    ("tune", "min_corner_hz"): allowed(gt=0),
+    ("tune", "max_samples"): allowed("integer", ge=100),
+    ("tune", "grid"): allowed("integer", ge=3),
+    ("tune", "rounds"): allowed("integer", ge=1),
+}
 
 
 def _bad(problem: str, fix: str = FIX) -> QrInputError:
@@ -75,17 +84,10 @@ def resolve(cfg: dict | None) -> dict:
         s[f]["r"] = _positive(s[f]["r"], f"{f}.r")
     if s["attitude"]["reset_deg"] is not None:
         s["attitude"]["reset_deg"] = _positive(s["attitude"]["reset_deg"], "attitude.reset_deg")
-    conf = s["nis"]["confidence"]
-    if not 0 < float(conf) < 1:
-        raise _bad(f"'nis.confidence' must be in (0, 1), got {conf!r}")
-    if float(s["nis"]["burn_in_s"]) < 0:
-        raise _bad(f"'nis.burn_in_s' must be >= 0, got {s['nis']['burn_in_s']!r}")
+    for (group, key), rule in RANGES.items():
+        s[group][key] = rule.check(f"filter.{group}.{key}", s[group][key], DEFAULTS[group][key],
+                                   "conf/filter/thesis.yaml")
     if s["tune"]["enabled"] and s["discretisation"] != "exact":
         raise _bad("tune.enabled needs discretisation: exact (q as a noise intensity, valid at any dt)",
                    "use filter=auto, or set filter.discretisation=exact")
-    _positive(s["tune"]["min_corner_hz"], "tune.min_corner_hz")
-    if int(s["tune"]["max_samples"]) < 100:
-        raise _bad(f"'tune.max_samples' must be at least 100, got {s['tune']['max_samples']!r}")
-    if int(s["tune"]["grid"]) < 3 or int(s["tune"]["rounds"]) < 1:
-        raise _bad("tune.grid must be >= 3 and tune.rounds >= 1")
     return s

@@ -41,6 +41,8 @@ def ingest(src: str | Path, vehicle, out: str | Path | None = None, fmt: str = "
     src = Path(src)
     if not src.exists():
         raise QrInputError(src, "log file does not exist", "check the path")
+    if src.is_dir():
+        raise QrInputError(src, "is a folder, not a log file", "give the log file itself (e.g. FOLDER/log00)")
     if src.stat().st_size == 0:
         raise QrInputError(src, "log file is empty", "point at a complete log (a failed recording is 0 bytes)")
     if fmt == "auto":

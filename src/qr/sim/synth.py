@@ -17,6 +17,7 @@ import pandas as pd
 
 from ..atomic import atomic_dir, write_json
 from ..effects import validate_effect_list
+from ..errors import QrInputError
 from ..flight import POSITION, QUATERNION, ROTORS, write_flight
 from ..frames import quat_multiply
 from ..vehicle import save_vehicle
@@ -114,7 +115,9 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
     hist = history_buffer(P, dt, x0[13:17])
     out = _fly(x0, P, C, traj.args(), dt, n_steps, log_every, hist)
     if not np.all(np.isfinite(out)):
-        raise RuntimeError("synthetic flight diverged; lower the trajectory's speed/tilt or the effects")
+        t_bad = out[np.flatnonzero(~np.isfinite(out).all(axis=1))[0], 0]
+        raise QrInputError("synthetic flight", f"the closed loop diverged at t = {t_bad:.2f} s",
+                           "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
     return pd.DataFrame(out, columns=TRUTH_COLUMNS)
 
 
@@ -138,11 +141,16 @@ def add_noise(truth: pd.DataFrame, vehicle, noise: NoiseConfig, rng: np.random.G
 def _blank(df, cols, fraction, rng):
     """Blank ``fraction`` of the rows in bursts of 1-5 samples (radio or tracking loss)."""
     n = len(df)
-    target = int(round(fraction * n))
+    # bursts start in [1, n - 7] and reach row n - 3 at most: the first and last rows are kept, so
+    # at most n - 3 rows can be blanked (more would never be reached)
+    target = min(int(round(fraction * n)), n - 3) if n >= 8 else 0  # (a shorter flight has no room for bursts)
     mask = np.zeros(n, dtype=bool)
-    while mask.sum() < target:
+    blank = 0
+    while blank < target:
         start = int(rng.integers(1, n - 6))
-        mask[start:start + int(rng.integers(1, 6))] = True
+        end = start + int(rng.integers(1, 6))
+        blank += int(np.count_nonzero(~mask[start:end]))
+        mask[start:end] = True
     df.loc[mask, cols] = np.nan
 
 

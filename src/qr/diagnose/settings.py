@@ -1,0 +1,112 @@
+"""The settings of ``qr diagnose`` (``conf/diagnose/default.yaml``), each with its allowed values.
+
+Every field declares its type and range once, beside it (:func:`qr.allowed.setting`), and
+one function (:func:`qr.allowed.check_fields`) holds the values to them, so a wrong override
+(``diagnose.train_fraction=1.5``, ``diagnose.horizon_s=abc``) is one line naming the
+key, the value and the allowed range, before any work is done.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import ClassVar
+
+from ..allowed import check_fields, setting, show
+from ..effects import CATALOG, MAX_DELAY_S
+from ..errors import QrInputError
+
+DEFAULTS_FILE = "conf/diagnose/default.yaml"
+
+
+def _catalog() -> list[str]:
+    return list(CATALOG)
+
+
+def _leaking_groups() -> dict[str, str]:
+    from ..datasets import LEAKS
+
+    return {g: f"the residual {target} is computed from it (it would explain it trivially)"
+            for target, groups in LEAKS.items() for g in groups}
+
+
+def _remainder_groups() -> list[str]:
+    from ..datasets import GROUPS
+
+    return [g for g in GROUPS if g not in _leaking_groups()]
+
+
+def _unknown(key: str, given, cls) -> None:
+    names = {f.name for f in fields(cls)}
+    extra = sorted(str(k) for k in given if k not in names)
+    if extra:
+        raise QrInputError(f"{key}.{extra[0]}", "unknown setting",
+                           f"use one of {', '.join(f.name for f in fields(cls))} ({DEFAULTS_FILE})")
+
+
+@dataclass
+class SelectionConfig:
+    KEY: ClassVar[str] = "diagnose.selection"
+    folds: int = setting(5, "integer", ge=2)
+    # accept an effect only if it cuts the CV loss by this fraction of the current loss
+    min_gain: float = setting(0.01, ge=0, lt=1)
+    # ... and helps in at least this share of the folds (the median fold by min_gain)
+    min_fold_share: float = setting(0.8, ge=0, le=1)
+    # a rival whose columns reproduce the winner's fitted term this well ...
+    confound_r2: float = setting(0.9, ge=0, le=1)
+    # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
+    t_separate: float = setting(3.0, gt=0)
+    separate_bootstrap: int = setting(100, "integer", ge=2)
+    # a candidate inflating a named effect's parameter variance this much, and moving it by
+    # > consistency_rel, trades off with it (collinear on this data)
+    vif_max: float = setting(10.0, ge=1)
+    # a simpler candidate nested in the winner, with this share of its gain, leads
+    nested_share: float = setting(0.9, ge=0, le=1)
+    # force-only and torque-only fits of one effect may differ by this many s.e. ...
+    consistency_t: float = setting(4.0, gt=0)
+    # ... or by this fraction, before the effect is rejected as inconsistent
+    consistency_rel: float = setting(0.3, ge=0)
+    max_effects: int = setting(6, "integer", ge=1)
+    bootstrap: int = setting(200, "integer", ge=2)
+    seed: int = setting(0, "integer", ge=0)
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+
+
+@dataclass
+class DiagnoseConfig:
+    KEY: ClassVar[str] = "diagnose"
+    horizon_s: float = setting(1.0, gt=0)
+    train_fraction: float = setting(0.7, gt=0, lt=1)
+    gap_s: float = setting(1.0, ge=0)
+    block_s: float = setting(2.0, gt=0)
+    trim_s: float = setting(0.5, ge=0)
+    candidates: list[str] | None = setting(None, "names", names=_catalog, null="the whole catalog", nonempty=True)
+    exclude: list[str] = setting(kind="names", names=_catalog, default_factory=list)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    remainder_inputs: list[str] = setting(kind="names", names=_remainder_groups, reasons=_leaking_groups,
+                                          nonempty=True, default_factory=lambda: ["v_b", "u", "q", "omega", "p"])
+    remainder_min_gain: float = setting(0.05, ge=0, le=1)
+    delay_max_s: float = setting(0.1, gt=0, le=MAX_DELAY_S)
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+        if not isinstance(self.selection, SelectionConfig):
+            raise QrInputError("diagnose.selection", f"{show(self.selection)} is not a mapping of settings",
+                               "override its keys one by one, e.g. diagnose.selection.folds=5")
+        left = [e for e in (self.candidates or list(CATALOG)) if e not in self.exclude]
+        if not left:
+            raise QrInputError("diagnose.exclude", f"{show(self.exclude)} leaves no candidate effect to test",
+                               "exclude fewer effects (or widen diagnose.candidates)")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "DiagnoseConfig":
+        d = dict(d or {})
+        sel = d.pop("selection", None) or {}
+        if not isinstance(sel, dict):
+            raise QrInputError("diagnose.selection", f"{show(sel)} is not a mapping of settings",
+                               "override its keys one by one, e.g. diagnose.selection.folds=5")
+        _unknown(SelectionConfig.KEY, sel, SelectionConfig)
+        names = {f.name for f in fields(cls)}
+        known = {k: v for k, v in d.items() if k in names}  # (filter, track: read elsewhere)
+        return cls(selection=SelectionConfig(**sel), **known)
