@@ -98,7 +98,7 @@ def test_every_setting_declares_its_range():
     from dataclasses import fields
 
     from qr.diagnose.core import DiagnoseConfig
-    from qr.diagnose.selection import SelectionConfig
+    from qr.identification.selection import SelectionConfig
 
     for cls in (DiagnoseConfig, SelectionConfig):
         for f in fields(cls):

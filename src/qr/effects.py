@@ -40,6 +40,9 @@ class Signals:
     u2f_dot: np.ndarray | None = None
     u2t: np.ndarray | None = None
     u2t_dot: np.ndarray | None = None
+    # Optional (N, 6) design column of actuator_delay per second of delay, from the exact delayed
+    # rotor map (qr.identification.delay); None: the first-order term.
+    delay_column: np.ndarray | None = None
 
     def __len__(self):
         return len(self.u)
@@ -47,6 +50,14 @@ class Signals:
     def take(self, idx) -> "Signals":
         return Signals(*(None if getattr(self, f) is None else getattr(self, f)[idx]
                          for f in self.__dataclass_fields__))
+
+    @staticmethod
+    def concat(parts: list["Signals"]) -> "Signals":
+        """Rows of ``parts`` one after the other (an optional signal only if every part has it)."""
+        def cat(f):
+            vals = [getattr(p, f) for p in parts]
+            return None if any(v is None for v in vals) else np.concatenate(vals)
+        return Signals(*(cat(f) for f in Signals.__dataclass_fields__))
 
     @property
     def u2_force(self) -> np.ndarray:
@@ -199,6 +210,8 @@ def _inertia_error(s, v):
 
 
 def _actuator_delay(s, v):
+    if s.delay_column is not None:
+        return s.delay_column[:, :, None].copy()
     # d/dt of the wrench B u² is B d(u²)/dt
     B = v.rotors.matrix
     D = _zeros(s, 1)

@@ -14,12 +14,14 @@ import pandas as pd
 
 from ..dynamics import residuals
 from ..effects import CATALOG, Signals, plausible_bounds, total_term
+from ..identification import delay as delay_mod
+from ..identification.bootstrap import bootstrap
+from ..identification.normal_equations import BlockStats, Columns, accumulate, design, fit, loss
+from ..identification.selection import ROWS, select, torque_arbitration
 from ..states import signals
 from . import replay as replay_mod
-from .noise import noise_sd
-from .selection import (BlockStats, Columns, accumulate, bootstrap, design, fit,
-                        forward_select, loss, solve, torque_arbitration)
-from .settings import DiagnoseConfig  # the settings and their allowed values live in .settings
+from .noise import calibrate, noise_sd
+from .settings import DiagnoseConfig  # noqa: F401  (the settings and their allowed values live in .settings)
 
 AXES = ["fx", "fy", "fz", "tx", "ty", "tz"]
 CHUNK = 20000
@@ -38,6 +40,13 @@ class Prepared:
     test: np.ndarray  # bool
     block: np.ndarray  # block id per training sample (-1 elsewhere)
     windows: list[dict]  # per flight: train/test windows in the flight's own time
+    # What effect designs read: ``s`` with the rotor signals delayed by the actuator-delay estimate
+    # and the delay's design column (``at_delay``); None: ``s`` itself.  Labels never change.
+    ds: Signals | None = None
+
+    @property
+    def design_s(self) -> Signals:
+        return self.s if self.ds is None else self.ds
 
 
 def flight_of(states_list: list[pd.DataFrame]) -> list[int]:
@@ -100,8 +109,7 @@ def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Pr
             blocks_next += len(used)
         parts.append((s, y, sd, t, np.full(len(t), i), train, test, block))
     cat = lambda k: np.concatenate([p[k] for p in parts])  # noqa: E731
-    s_all = Signals(*(np.concatenate([getattr(p[0], f) for p in parts])
-                      for f in Signals.__dataclass_fields__))
+    s_all = Signals.concat([p[0] for p in parts])
     return Prepared(s_all, cat(1), cat(2), cat(3), cat(4), cat(5), cat(6), cat(7), windows)
 
 
@@ -109,7 +117,7 @@ def prepare_cross(pairs: list[tuple[pd.DataFrame, pd.DataFrame]], vehicle, cfg: 
     """Fitting data from disjoint-measurement filters: labels of one half, regressors of the other."""
     a = prepare([p[0] for p in pairs], vehicle, cfg)
     b = prepare([p[1] for p in pairs], vehicle, cfg)
-    s = Signals(*(np.concatenate([getattr(b.s, f), getattr(a.s, f)]) for f in Signals.__dataclass_fields__))
+    s = Signals.concat([b.s, a.s])
     cat = lambda k: np.concatenate([getattr(a, k), getattr(b, k)])  # noqa: E731
     return Prepared(s, cat("y"), cat("sd"), cat("t"), cat("flight"), cat("train"), cat("test"), cat("block"),
                     a.windows)
@@ -120,27 +128,34 @@ def weights(sd: np.ndarray) -> np.ndarray:
     return 1.0 / np.maximum(sd, floor) ** 2
 
 
-def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = None, rows=None) -> BlockStats:
-    """Per-block normal equations; ``rows`` restricts the loss to some of the six axes."""
+def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = None, rows=None,
+                s: Signals | None = None):
+    """Per-block normal equations; designs read ``s`` (default: ``prep.design_s``).
+
+    ``rows`` restricts the loss to some of the six axes; a list of such restrictions (``None`` for all
+    rows) gives one ``BlockStats`` each, from one pass over the designs.
+    """
+    many = isinstance(rows, list) and (not rows or not np.isscalar(rows[0]))
+    row_sets = rows if many else [rows]
     y = prep.y if y is None else y
+    s_design = prep.design_s if s is None else s
     idx = np.flatnonzero(prep.train)
     n_blocks = int(prep.block[idx].max()) + 1 if idx.size else 0
     p = cols.size
-    G, h, s, n = np.zeros((n_blocks, p, p)), np.zeros((n_blocks, p)), np.zeros(n_blocks), np.zeros(n_blocks)
-    w = weights(prep.sd)
-    if rows is not None:
-        w = w * np.isin(np.arange(6), rows)
+    w0 = weights(prep.sd)
+    ws = [w0 if r is None else w0 * np.isin(np.arange(6), r) for r in row_sets]
+    acc = [[np.zeros((n_blocks, p, p)), np.zeros((n_blocks, p)), np.zeros(n_blocks), np.zeros(n_blocks)]
+           for _ in row_sets]
     lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
     ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
     for start in range(0, idx.size, CHUNK):
         sl = idx[start:start + CHUNK]
-        X = design(prep.s.take(sl), vehicle, cols)
-        g_, h_, s_, n_ = accumulate(X, y[sl], w[sl], prep.block[sl], n_blocks)
-        G += g_
-        h += h_
-        s += s_
-        n += n_
-    return BlockStats(G, h, s, n, cols, lb, ub)
+        X = design(s_design.take(sl), vehicle, cols)
+        for a, w in zip(acc, ws):
+            for total, part in zip(a, accumulate(X, y[sl], w[sl], prep.block[sl], n_blocks)):
+                total += part
+    out = [BlockStats(*a, cols, lb, ub) for a in acc]
+    return out if many else out[0]
 
 
 def predict(s: Signals, vehicle, effects: list[str], theta: np.ndarray, force_only=()) -> np.ndarray:
@@ -158,7 +173,7 @@ def extended_prediction(prep: Prepared, vehicle, named: list[str], theta: np.nda
                         force_only=()) -> np.ndarray:
     """Terms of the named effects on samples ``idx`` of ``prep``; the delay by its exact map."""
     idx = np.arange(len(prep.t)) if idx is None else idx
-    s = prep.s.take(idx)
+    s = prep.design_s.take(idx)
     if "actuator_delay" not in named:
         return predict(s, vehicle, named, theta, force_only)
     others = [e for e in named if e != "actuator_delay"]
@@ -184,43 +199,59 @@ def rms(x: np.ndarray, axis=0) -> np.ndarray:
 
 def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, cfg: DiagnoseConfig,
                  force_only=()):
-    """Replace actuator_delay's first-order term by the exact delayed rotor map (1-D search).
+    """The delay by its exact delayed rotor map, jointly with the other named effects (1-D search).
 
     Returns the refined delay and the other effects' parameters.
     """
-    from scipy.optimize import minimize_scalar
-
     others = [e for e in named if e != "actuator_delay"]
     cols = Columns.of(others, force_only)
 
     def train_loss(d):
         yd = prep.y - exact_delay_term(prep, vehicle, d)
-        st = block_stats(prep, vehicle, cols, yd)
+        st = block_stats(prep, vehicle, cols, yd, s=at_delay(prep, vehicle, d))
         th = fit(st, others) if others else np.zeros(0)
         G, h, s, n = st.subset(np.arange(len(st.s)))
         return loss(G, h, s, n, th), th
 
     d1 = float(theta[Columns.of(named).slices["actuator_delay"]][0])
-    hi = min(cfg.delay_max_s, max(3 * abs(d1), 0.01))
-    res = minimize_scalar(lambda d: train_loss(d)[0], bounds=(0.0, hi), method="bounded",
-                          options={"xatol": 1e-4})
-    d = float(res.x)
+    hi = min(cfg.delay_max_s, max(2 * abs(d1), 0.01))
+    d = delay_mod.estimate(lambda x: train_loss(x)[0], hi, 0.0, n_grid=11)
     return d, train_loss(d)[1]
 
 
 def exact_delay_term(prep: Prepared, vehicle, d: float) -> np.ndarray:
     """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6)."""
-    term = np.zeros_like(prep.y)
-    B = vehicle.rotors.matrix
-    uf, ut = prep.s.u2_force, prep.s.u2_torque
-    # the stacked halves repeat time: interpolate within each contiguous run of increasing t
-    starts = np.flatnonzero(np.concatenate([[True], (np.diff(prep.t) <= 0) | (np.diff(prep.flight) != 0)]))
-    for a, b in zip(starts, list(starts[1:]) + [len(prep.t)]):
-        t = prep.t[a:b]
-        shift = lambda x: np.column_stack([np.interp(t - d, t, x[a:b, k]) for k in range(4)])  # noqa: E731
-        term[a:b, 2] = (shift(uf) - uf[a:b]) @ B[0]
-        term[a:b, 3:] = (shift(ut) - ut[a:b]) @ B[1:].T
-    return term
+    return delay_mod.exact_term(prep.t, prep.flight, prep.s.u2_force, prep.s.u2_torque, vehicle.rotors.matrix, d)
+
+
+def at_delay(prep: Prepared, vehicle, d: float, column: str = "secant", shift: float | None = None) -> Signals:
+    """``prep.s`` as effect designs read it when the rotor map acts ``d`` late: rotor signals ``shift``
+    (default ``d``) late, and actuator_delay's column (the secant through 0 and ``d``, at least one
+    sample; or the tangent at ``d``)."""
+    from dataclasses import replace
+
+    shift = d if shift is None else shift
+    args = (prep.t, prep.flight, prep.s.u2_force, prep.s.u2_torque, vehicle.rotors.matrix)
+    dt = float(np.median(np.diff(prep.t[:1000]))) if len(prep.t) > 1 else 0.01
+    if column == "secant":
+        col = delay_mod.secant_column(*args, max(d, dt))
+    else:
+        col = delay_mod.tangent_column(*args, d, step=0.5 * dt)
+    shifted = lambda x: delay_mod.shift(prep.t, prep.flight, x, shift)  # noqa: E731
+    return replace(prep.s, u2f=shifted(prep.s.u2_force), u2t=shifted(prep.s.u2_torque), u2f_dot=None, u2t_dot=None,
+                   delay_column=col)
+
+
+def first_delay(prep: Prepared, vehicle, cfg: DiagnoseConfig) -> float:
+    """A first estimate of an actuator delay, by the exact map alone on the training part.
+
+    Other effects are slow next to the delay's signature (the rotor map's rate), so they barely move it.
+    """
+    w = weights(prep.sd)
+    tr = prep.train & np.isfinite(prep.y).all(axis=1)
+    y, w = prep.y[tr], w[tr]
+    return delay_mod.estimate(lambda d: float(np.sum(w * (y - exact_delay_term(prep, vehicle, d)[tr]) ** 2)),
+                              cfg.delay_max_s, 0.0)
 
 
 def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame], vehicle,
@@ -229,41 +260,72 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     step = progress or (lambda msg: None)
     prep = prepare(states_list, vehicle, cfg)
     fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
+    noise_scale = calibrate(fitprep, prep) if pairs else None
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
+    d0 = None
+    if "actuator_delay" in candidates:
+        step("actuator delay: first estimate")
+        d0 = first_delay(fitprep, vehicle, cfg)
+        for p in {id(x): x for x in (prep, fitprep)}.values():
+            p.ds = at_delay(p, vehicle, d0, shift=0.0)
     step("normal equations")
 
-    def all_rows_force_rows_torque_rows(cols):
-        return block_stats(fitprep, vehicle, cols), (block_stats(fitprep, vehicle, cols, rows=[0, 1, 2]),
-                                                     block_stats(fitprep, vehicle, cols, rows=[3, 4, 5]))
+    def statistics(cols):
+        """All rows, and the rows of each ``ROWS`` group alone."""
+        all_rows, *groups = block_stats(fitprep, vehicle, cols, rows=[None, *ROWS.values()])
+        return all_rows, dict(zip(ROWS, groups))
 
-    stats, row_stats = all_rows_force_rows_torque_rows(Columns.of(candidates))
+    def selection(force_only=frozenset()):
+        stats, rows = statistics(Columns.of(candidates, force_only))
+        sel = select(stats, cfg.selection, rows)
+        # May the roll/pitch torque arbitrate C_T?  Judged given what the data do contain (this
+        # selection's effects): if the torque rows still put thrust_gain on its bound, select again
+        # with thrust_gain fitted on the force rows alone.
+        arb = torque_arbitration((rows["force"], rows["torque"]),
+                                 base=[e for e in sel.named if e != "thrust_gain"]) \
+            if "thrust_gain" in candidates and "thrust_gain" not in sel.named and not force_only else {}
+        if arb:
+            stats, rows, sel, _ = selection(frozenset(arb))
+        return stats, rows, sel, arb
+
     step("selection")
-    sel = forward_select(stats, cfg.selection, row_stats=row_stats)
-    # May the roll/pitch torque arbitrate C_T?  Judged given what the data do contain (the first
-    # selection's effects): if the torque rows still put thrust_gain on its bound, select again with
-    # thrust_gain fitted on the force rows alone.
-    arb = torque_arbitration(row_stats, base=[e for e in sel.named if e != "thrust_gain"]) \
-        if "thrust_gain" in candidates and "thrust_gain" not in sel.named else {}
-    force_only = frozenset(arb)
-    if force_only:
-        stats, row_stats = all_rows_force_rows_torque_rows(Columns.of(candidates, force_only))
-        sel = forward_select(stats, cfg.selection, row_stats=row_stats)
+    stats, rows, sel, arb = selection()
+    force_only = frozenset(arb) or stats.cols.force_only
+    d = None
+    if "actuator_delay" in sel.named:
+        # a delayed rotor map delays every rotor-map effect (a C_Q error acts on the late yaw torque):
+        # with the delay named, the others are judged again through the late rotor map
+        step("exact delay")
+        d, _ = refine_delay(fitprep, vehicle, sel.named, fit(stats, sel.named), cfg, force_only)
+        for p in {id(x): x for x in (prep, fitprep)}.values():
+            p.ds = at_delay(p, vehicle, d)
+        stats, rows, sel, arb_again = selection(force_only)
+        arb = arb_again or arb
+        force_only = stats.cols.force_only
     named = sel.named
     theta = fit(stats, named) if named else np.zeros(0)
-    step("bootstrap")
-    boot = bootstrap(stats, named, cfg.selection.bootstrap, seed) if named else np.zeros((0, 0))
-    se = boot.std(axis=0) if named else np.zeros(0)
-
-    test = prep.test
-    s_test = prep.s.take(np.flatnonzero(test))
-    y_test = prep.y[test]
+    boot_stats = stats
     if "actuator_delay" in named:
-        step("exact delay")
         d, th_other = refine_delay(fitprep, vehicle, named, theta, cfg, force_only)
         others = [e for e in named if e != "actuator_delay"]
         theta = theta.copy()
         theta[Columns.of(named).index(others)] = th_other
         theta[Columns.of(named).slices["actuator_delay"]] = d
+        # the bootstrap repeats the whole estimator, delay search included, to first order: the model
+        # linearised at d (a Gauss-Newton step from d, whose fixed point is the estimate)
+        s_lin = at_delay(fitprep, vehicle, d, "tangent")
+        y_lin = fitprep.y - exact_delay_term(fitprep, vehicle, d) + d * s_lin.delay_column
+        boot_stats = block_stats(fitprep, vehicle, Columns.of(named, force_only), y_lin, s=s_lin)
+        prep.ds = at_delay(prep, vehicle, d)  # the extended model's other rotor-map effects act d late
+    elif d is not None:  # the delay did not survive the second pass: back to the rotor map on time
+        prep.ds = at_delay(prep, vehicle, d0, shift=0.0)
+    step("bootstrap")
+    boot = bootstrap(boot_stats, named, cfg.selection.bootstrap, seed) if named else np.zeros((0, 0))
+    se = boot.std(axis=0) if named else np.zeros(0)
+
+    test = prep.test
+    s_test = prep.design_s.take(np.flatnonzero(test))
+    y_test = prep.y[test]
     pred_test = extended_prediction(prep, vehicle, named, theta, np.flatnonzero(test), force_only)
     effects = to_parameters(named, theta, se)
 
@@ -290,8 +352,10 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         "nominal_loss": base_loss,
         "extended_loss": float(np.nanmean(w_test * ext_resid**2)),
         "effects": effects,
-        "selection": {"steps": sel.steps, "cv_loss_nominal": sel.loss_nominal, "cv_loss_final": sel.loss_final,
-                      "rejected": sel.rejected},
+        "selection": {"path": sel.path, "equivalent": sel.equivalent, "cv_loss_nominal": sel.loss_nominal,
+                      "cv_loss_final": sel.loss_final, "rejected": sel.rejected},
+        "noise_scale": noise_scale,
+        "delay_first_estimate": d0,
         "bootstrap": boot,
         "prep": prep,
         "fitprep": fitprep,

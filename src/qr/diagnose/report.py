@@ -54,7 +54,8 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
         "anatomy": {k: _r(v, 4) for k, v in res.get("anatomy", {}).items()},
         "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
                       "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
-                      "steps": [_clean(s) for s in res["selection"]["steps"]],
+                      "path": [_clean(s) for s in res["selection"]["path"]],
+                      "equivalent": [_clean(s) for s in res["selection"].get("equivalent", [])],
                       "rejected": res["selection"].get("rejected", {}),
                       "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in d.items()}
                                              for k, d in res.get("torque_arbitration", {}).items()}},
@@ -169,25 +170,28 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
     else:
         L.append("None: no catalog effect improves the cross-validated fit by more than "
                  f"{100 * doc['config']['selection']['min_gain']:.0f} % of the residual.\n")
-    L.append("Selection path (cross-validated loss in noise-variance units):\n")
-    L.append("| step | best candidate | gain | folds improved | median fold | decision |")
-    L.append("|---:|---|---:|---:|---:|---|")
-    for i, s in enumerate(doc["selection"]["steps"]):
-        if "dropped" in s:
-            L.append(f"| {i + 1} | {s['dropped']} | - | - | - | dropped (redundant) |")
-            continue
-        dec = (f"named `{s['named']}`" if s.get("accepted") else
-               f"not named: collinear with {', '.join(s['collinear_with'])}" if s.get("collinear_with") else "stop")
-        if s.get("replaced"):
-            dec += f" (replacing `{s['replaced']}`: the same term, fitted better)"
-        if s.get("nested_in"):
-            dec += f" (simpler, nested in `{s['nested_in']}`, which stays a candidate)"
-        if s.get("confounded"):
-            dec += f" (confounded: {', '.join(s['confounded'])})"
-        med = f"{100 * float(np.median(s['fold_gains'])):.1f} %" if s.get("fold_gains") else "-"
-        L.append(f"| {i + 1} | {s['candidate']} | {100 * s['gain']:.1f} % | {100 * s['fold_share']:.0f} % | {med} "
-                 f"| {dec} |")
+    L.append("Selection path: the best set of each size by cross-validated loss (noise-variance units); a "
+             "larger set is named only if it beats the smaller one by "
+             f"{100 * doc['config']['selection']['min_gain']:.0f} % in most folds, or by "
+             f"{100 * doc['config']['selection']['strong_gain']:.0f} % where it acts (paired per-block t >= "
+             f"{doc['config']['selection']['t_gain']:g}):\n")
+    L.append("| effects | best set | CV loss | gain | folds improved | paired t | runner-up (loss) | named |")
+    L.append("|---:|---|---:|---:|---:|---:|---|---|")
+    for s in doc["selection"]["path"]:
+        best = ", ".join(f"`{e}`" for e in s["effects"]) or "(nominal)"
+        runner = (", ".join(s["runner_up"]) + f" ({s['runner_up_loss']:.4g})") if s.get("runner_up") else "-"
+        gain = f"{100 * s['gain']:.1f} %" if s["size"] else "-"
+        share = f"{100 * s['fold_share']:.0f} %" if s["size"] else "-"
+        med = f"{s['t']:.1f}" if s["size"] else "-"
+        L.append(f"| {s['size']} | {best} | {s['loss']:.4g} | {gain} | {share} | {med} | {runner} | "
+                 f"{'yes' if s['accepted'] else 'no'} |")
     L.append("")
+    if doc["selection"].get("equivalent"):
+        L.append("Sets the data cannot tell from the named one (the simplest is named):\n")
+        for e in doc["selection"]["equivalent"]:
+            L.append(f"- {', '.join(f'`{x}`' for x in e['effects'])}: CV loss {e['loss']:.4g} "
+                     f"(paired t {e['t']:.2f})")
+        L.append("")
     L += _anatomy_table(res.get("anatomy") or {})
     for name, d in doc["selection"].get("torque_arbitration", {}).items():
         given = ", ".join(f"`{e}`" for e in d.get("given", [])) or "no other effect"

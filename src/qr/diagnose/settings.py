@@ -14,6 +14,7 @@ from typing import ClassVar
 from ..allowed import check_fields, setting, show
 from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
+from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
 
 DEFAULTS_FILE = "conf/diagnose/default.yaml"
 
@@ -41,36 +42,6 @@ def _unknown(key: str, given, cls) -> None:
     if extra:
         raise QrInputError(f"{key}.{extra[0]}", "unknown setting",
                            f"use one of {', '.join(f.name for f in fields(cls))} ({DEFAULTS_FILE})")
-
-
-@dataclass
-class SelectionConfig:
-    KEY: ClassVar[str] = "diagnose.selection"
-    folds: int = setting(5, "integer", ge=2)
-    # accept an effect only if it cuts the CV loss by this fraction of the current loss
-    min_gain: float = setting(0.01, ge=0, lt=1)
-    # ... and helps in at least this share of the folds (the median fold by min_gain)
-    min_fold_share: float = setting(0.8, ge=0, le=1)
-    # a rival whose columns reproduce the winner's fitted term this well ...
-    confound_r2: float = setting(0.9, ge=0, le=1)
-    # ... is told apart when, fitted jointly, only one has parameters this many s.e. from 0
-    t_separate: float = setting(3.0, gt=0)
-    separate_bootstrap: int = setting(100, "integer", ge=2)
-    # a candidate inflating a named effect's parameter variance this much, and moving it by
-    # > consistency_rel, trades off with it (collinear on this data)
-    vif_max: float = setting(10.0, ge=1)
-    # a simpler candidate nested in the winner, with this share of its gain, leads
-    nested_share: float = setting(0.9, ge=0, le=1)
-    # force-only and torque-only fits of one effect may differ by this many s.e. ...
-    consistency_t: float = setting(4.0, gt=0)
-    # ... or by this fraction, before the effect is rejected as inconsistent
-    consistency_rel: float = setting(0.3, ge=0)
-    max_effects: int = setting(6, "integer", ge=1)
-    bootstrap: int = setting(200, "integer", ge=2)
-    seed: int = setting(0, "integer", ge=0)
-
-    def __post_init__(self):
-        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
 
 
 @dataclass

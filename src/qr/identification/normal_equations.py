@@ -1,0 +1,231 @@
+"""Least squares on per-block normal equations: the algebra under effect identification.
+
+Every catalog term is linear in its parameters, so the whole search runs on
+per-block normal equations.  For blocks ``b`` (contiguous time, ~2 s) we keep
+``G_b = Xᵀ W X``, ``h_b = Xᵀ W y``, ``s_b = yᵀ W y`` over all candidate columns;
+any subset's least-squares fit on any set of blocks, and its loss on any other
+set, are then a few small matrix operations.  ``W`` weighs each of the six
+residual axes by the inverse noise variance, so a loss is in units of the
+noise floor (≈ 1 when only noise is left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..effects import CATALOG, Signals
+
+
+@dataclass
+class Columns:
+    """Where each candidate effect's parameters sit in the stacked design."""
+
+    effects: list[str]
+    slices: dict[str, slice]
+    # effects whose torque half is left out (see ``selection.torque_arbitration``)
+    force_only: frozenset = frozenset()
+
+    @classmethod
+    def of(cls, effects, force_only=()):
+        slices, j = {}, 0
+        for e in effects:
+            k = len(CATALOG[e].params)
+            slices[e] = slice(j, j + k)
+            j += k
+        return cls(list(effects), slices, frozenset(force_only) & set(effects))
+
+    @property
+    def size(self) -> int:
+        return sum(s.stop - s.start for s in self.slices.values())
+
+    def index(self, effects) -> np.ndarray:
+        return np.concatenate([np.arange(self.slices[e].start, self.slices[e].stop) for e in effects]) \
+            if effects else np.zeros(0, dtype=int)
+
+
+def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
+    """Stacked design (N, 6, p) of all candidate effects."""
+    if not cols.effects:
+        return np.zeros((len(s), 6, 0))
+    parts = []
+    for e in cols.effects:
+        X = CATALOG[e].design(s, vehicle)
+        if e in cols.force_only:
+            X = X.copy()
+            X[:, 3:, :] = 0.0
+        parts.append(X)
+    return np.concatenate(parts, axis=2)
+
+
+@dataclass
+class BlockStats:
+    """Per-block normal equations."""
+
+    G: np.ndarray  # (B, p, p)
+    h: np.ndarray  # (B, p)
+    s: np.ndarray  # (B,)
+    n: np.ndarray  # (B,) weighted sample-axis count
+    cols: Columns
+    lb: np.ndarray | None = None  # plausible parameter range (minus neutral values), per column
+    ub: np.ndarray | None = None
+
+    def bounds(self, idx):
+        if self.lb is None:
+            return None, None
+        return self.lb[idx], self.ub[idx]
+
+    def subset(self, blocks) -> tuple[np.ndarray, np.ndarray, float, float]:
+        return self.G[blocks].sum(0), self.h[blocks].sum(0), float(self.s[blocks].sum()), float(self.n[blocks].sum())
+
+    @property
+    def blocks(self) -> int:
+        return len(self.s)
+
+
+def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int):
+    """A chunk's contribution to per-block normal equations.
+
+    ``X`` (N, 6, p), ``y`` (N, 6), ``w`` (N, 6) weights, ``block_id`` (N,) sorted.
+    """
+    p = X.shape[2]
+    G = np.zeros((n_blocks, p, p))
+    h = np.zeros((n_blocks, p))
+    s = np.zeros(n_blocks)
+    n = np.zeros(n_blocks)
+    ok = np.isfinite(y).all(axis=1) & np.isfinite(X).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
+    edges = np.flatnonzero(np.diff(block_id)) + 1
+    for idx in np.split(np.arange(len(block_id)), edges):
+        idx = idx[ok[idx]]
+        if idx.size == 0:
+            continue
+        b = block_id[idx[0]]
+        Xb = X[idx].reshape(idx.size * 6, p)
+        wb = w[idx].reshape(-1)
+        yb = y[idx].reshape(-1)
+        Xw = Xb * wb[:, None]
+        G[b] += Xb.T @ Xw
+        h[b] += Xw.T @ yb
+        s[b] += float(yb @ (wb * yb))
+        n[b] += idx.size * 6
+    return G, h, s, n
+
+
+def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -> np.ndarray:
+    """Least squares from normal equations (scaled, tiny ridge), within bounds if given."""
+    if G.size == 0:
+        return np.zeros(0)
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs = G / np.outer(d, d)
+    Gs[np.diag_indices_from(Gs)] += ridge
+    theta = np.linalg.solve(Gs, h / d) / d
+    if lb is None or (np.all(theta >= lb) and np.all(theta <= ub)):
+        return theta
+    # bounded: min ||Lᵀ x - L⁻¹ h||² with G = L Lᵀ is the same quadratic
+    from scipy.linalg import cho_factor, solve_triangular
+    from scipy.optimize import lsq_linear
+
+    L, _ = cho_factor(Gs, lower=True)
+    L = np.tril(L)
+    b = solve_triangular(L, h / d, lower=True)
+    res = lsq_linear(L.T, b, bounds=(lb * d, ub * d), method="bvls")
+    return res.x / d
+
+
+def loss(G, h, s, n, theta) -> float:
+    return float((s - 2 * theta @ h + theta @ G @ theta) / max(n, 1.0))
+
+
+def fit(stats: BlockStats, effects: list[str], blocks=None) -> np.ndarray:
+    """Parameters (minus neutral values) of ``effects`` on ``blocks`` (all), within the plausible bounds."""
+    blocks = np.arange(stats.blocks) if blocks is None else blocks
+    G, h, _, _ = stats.subset(blocks)
+    idx = stats.cols.index(effects)
+    return solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *stats.bounds(idx))
+
+
+def at_bound(stats: BlockStats, effects: list[str], effect: str | None = None) -> bool:
+    """Does the fit of ``effects`` put a parameter (of ``effect``, or of any) on a plausibility bound?
+
+    A bound at the neutral value (drag cannot be negative) is a constraint, not nonsense: a
+    component fitted to it is absent.  Only a bound away from neutral counts.
+    """
+    if stats.lb is None or not effects:
+        return False
+    theta = fit(stats, effects)
+    lo, hi = stats.bounds(stats.cols.index(effects))
+    if effect is not None:
+        sl = Columns.of(effects).slices[effect]
+        theta, lo, hi = theta[sl], lo[sl], hi[sl]
+    scale = np.maximum(np.abs(np.where(np.isfinite(lo), lo, 0)), np.abs(np.where(np.isfinite(hi), hi, 0)))
+    tol = 1e-6 * np.maximum(scale, 1e-300)
+    low = (theta <= lo + tol) & (np.abs(lo) > tol)
+    high = (theta >= hi - tol) & (np.abs(hi) > tol)
+    return bool(np.any(low | high))
+
+
+def inflation(stats: BlockStats, effects: list[str]) -> np.ndarray:
+    """Variance inflation of each parameter of ``effects`` fitted jointly: ``diag(C⁻¹)`` of the normal
+    equations scaled to unit diagonal (1: orthogonal to the others; large: the data cannot tell it from
+    a combination of them)."""
+    idx = stats.cols.index(effects)
+    if idx.size == 0:
+        return np.zeros(0)
+    G = stats.G.sum(0)[np.ix_(idx, idx)]
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    C = G / np.outer(d, d) + 1e-12 * np.eye(idx.size)
+    return np.diag(np.linalg.inv(C))
+
+
+class CrossValidator:
+    """Blocked cross-validation: ``folds`` contiguous runs of blocks; a fold's model is fitted on the
+    blocks that are neither in it nor adjacent to it (filter smoothing correlates neighbours)."""
+
+    def __init__(self, stats: BlockStats, folds: int):
+        B = stats.blocks
+        self.stats = stats
+        self.folds = folds
+        self.fold_of = np.minimum((np.arange(B) * folds) // max(B, 1), folds - 1)
+        self.train = []
+        for f in range(folds):
+            val = self.fold_of == f
+            near = val | np.roll(val, 1) | np.roll(val, -1)
+            self.train.append(np.flatnonzero(~near))
+        self._cache: dict[tuple, np.ndarray] = {}
+
+    def block_losses(self, effects, on: BlockStats | None = None) -> np.ndarray:
+        """Validation loss of each block (unnormalised: weighted squared residual sum), its fold's fit;
+        ``on``: the same blocks' statistics of some rows only (fit on all rows, judged on those)."""
+        key = (tuple(sorted(effects)), id(on))
+        if key not in self._cache:
+            st, ev = self.stats, on or self.stats
+            idx = st.cols.index(list(key[0]))
+            out = np.empty(st.blocks)
+            for f in range(self.folds):
+                G, h, _, _ = st.subset(self.train[f])
+                theta = solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *st.bounds(idx))
+                vb = np.flatnonzero(self.fold_of == f)
+                Gv = ev.G[vb][:, idx][:, :, idx]
+                out[vb] = ev.s[vb] - 2 * ev.h[vb][:, idx] @ theta + np.einsum("i,bij,j->b", theta, Gv, theta)
+            self._cache[key] = out
+        return self._cache[key]
+
+    def losses(self, effects) -> np.ndarray:
+        """Validation loss per fold (noise-variance units)."""
+        raw = self.block_losses(effects)
+        return np.array([raw[self.fold_of == f].sum() / max(self.stats.n[self.fold_of == f].sum(), 1.0)
+                         for f in range(self.folds)])
+
+    def loss(self, effects) -> float:
+        """Validation loss over all folds (noise-variance units)."""
+        return float(self.block_losses(effects).sum() / max(self.stats.n.sum(), 1.0))
+
+    def paired_t(self, worse, better, on: BlockStats | None = None) -> float:
+        """t statistic of the per-block loss difference ``worse - better`` (positive: ``worse`` is worse),
+        judged on the rows of ``on`` (default: all)."""
+        n = np.maximum((on or self.stats).n, 1.0)
+        d = (self.block_losses(worse, on) - self.block_losses(better, on)) / n
+        if len(d) < 3 or not np.any(d):
+            return 0.0
+        return float(d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300))
