@@ -30,13 +30,8 @@ os.environ.setdefault("QR_TRACKING", "off")
 
 import numpy as np  # noqa: E402
 
-from qr.config import vehicle_path  # noqa: E402
-from qr.diagnose import run_diagnosis  # noqa: E402
 from qr.effects import CATALOG  # noqa: E402
-from qr.sim.scenarios import combinations, materialise  # noqa: E402
-from qr.sim.synth import NoiseConfig, SynthConfig, write_synth  # noqa: E402
-from qr.sim.trajectory import TrajectoryConfig  # noqa: E402
-from qr.vehicle import load_vehicle  # noqa: E402
+from qr.sim.scenarios import combinations, diagnose_scenario  # noqa: E402
 
 
 def parameter_errors(truth: list[dict], named: list[dict]) -> dict:
@@ -71,19 +66,7 @@ def up_to_confounding(named: list[dict], truth: list[str]) -> tuple[bool, list[s
 
 
 def run(sc, tmp: Path, duration: float, rate: float, verbose: bool):
-    vehicle = load_vehicle(vehicle_path(sc.vehicle))
-    materialise(sc, vehicle)
-    base = NoiseConfig()
-    noise = NoiseConfig(position_std=base.position_std * sc.noise_scale, attitude_std=base.attitude_std * sc.noise_scale,
-                        rotor_std=base.rotor_std * sc.noise_scale, dropout=base.dropout)
-    traj = TrajectoryConfig(v_max=sc.v_max, tilt_max_deg=sc.tilt_max_deg, low_passes=sc.low_height > 0,
-                            low_height=sc.low_height or TrajectoryConfig().low_height)
-    d = tmp / f"s{sc.seed}"
-    d.mkdir()
-    write_synth(d / "s", vehicle, sc.effects, SynthConfig(duration=duration, rate=rate, seed=sc.seed, noise=noise,
-                                                         trajectory=traj))
-    doc = run_diagnosis([d / "s" / "flight.csv"], d / "s" / "vehicle.yaml", d / "d", log=lambda m: None,
-                        figures=False)
+    doc = diagnose_scenario(sc, tmp / f"s{sc.seed}", duration, rate)
     if verbose:
         for s in doc["selection"]["path"]:
             print("   ", s)

@@ -28,12 +28,15 @@ RATE = 100.0
 
 
 def _ground(n, p, u, t0, seed=0):
-    """``n`` samples of a vehicle at rest at ``p`` (level, 0.5 mm mocap noise), rotor speeds ``u`` (array or scalar)."""
+    """``n`` samples of a vehicle at rest at ``p`` (level; mocap noise 0.5 mm and 0.17 deg), rotor speeds ``u``
+    (array or scalar)."""
     rng = np.random.default_rng(seed)
     df = pd.DataFrame({"t": t0 + np.arange(n) / RATE})
     for k, c in enumerate(["px", "py", "pz"]):
         df[c] = p[k] + rng.normal(0, 0.0005, n)
-    df[["qw", "qx", "qy", "qz"]] = [1.0, 0.0, 0.0, 0.0]
+    half = rng.normal(0, 0.003 / 2, (n, 3))  # small rotation vectors / 2: a unit quaternion near identity
+    q = np.column_stack([np.ones(n), half])
+    df[["qw", "qx", "qy", "qz"]] = q / np.linalg.norm(q, axis=1, keepdims=True)
     for c in ["u1", "u2", "u3", "u4"]:
         df[c] = u
     return df
@@ -241,7 +244,7 @@ def test_ground_rows_change_nothing_and_the_window_is_reported(drag_flight):
     d, flight, clean = drag_flight
     log, window = _on_the_ground(flight, load_vehicle(HB), spin_up_s=2.0)
     doc = _diagnose(d, log, "ground")
-    assert doc["airborne"] == [{"flight": "ground.csv", "window": [5.0, 45.0], "dropped_s": 10.0}]
+    assert doc["airborne"] == [{"flight": str(d / "ground.csv"), "window": [5.0, 45.0], "dropped_s": 10.0}]
     # the same rows are fitted: the same effect, the same numbers
     assert [e["name"] for e in doc["effects"]] == ["linear_drag"]
     for k, v in clean["effects"][0]["parameters"].items():
@@ -252,14 +255,14 @@ def test_ground_rows_change_nothing_and_the_window_is_reported(drag_flight):
     for part in ("train", "test"):
         assert doc["split"][part] == pytest.approx([x + 5.0 for x in clean["split"][part]], abs=1e-3)
     report = (d / "ground" / "report.md").read_text()
-    assert "`ground.csv`: airborne 5.00-45.00 s; 10.0 s on the ground left out" in report
+    assert f"`{d / 'ground.csv'}`: airborne 5.00-45.00 s; 10.0 s on the ground left out" in report
 
 
 def test_a_time_gap_splits_the_flight_and_nothing_straddles_it(drag_flight):
     d, flight, _ = drag_flight
     t = flight["t"].to_numpy()
     doc, res = _diagnose(d, flight[(t < 20) | (t >= 22)], "gap", return_result=True)
-    assert doc["time_gaps"] == [{"flight": "gap.csv", "from": 19.99, "to": 22.0}]
+    assert doc["time_gaps"] == [{"flight": str(d / "gap.csv"), "from": 19.99, "to": 22.0}]
     assert [s["window"] for s in doc["segments"]] == [[0.0, 19.99], [22.0, 40.0]]
     assert "no samples from 19.99 to 22.00 s" in (d / "gap" / "report.md").read_text()
     prep = res["prep"]

@@ -233,7 +233,7 @@ def test_non_finite_time_stamp(tmp_path, capsys):
     df["t"] = df["t"].astype(object)
     df.loc[7, "t"] = "1e999"  # parses as inf
     path = _csv(tmp_path, df)
-    assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], "time stamp inf at data row 8")
+    assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", HB], "time stamp inf (not a number of seconds) at data row 8")
 
 
 def test_frozen_attitude(tmp_path, capsys):

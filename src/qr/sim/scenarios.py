@@ -147,3 +147,63 @@ def materialise(sc: Scenario, vehicle) -> Scenario:
     if "ground_effect" in sc.names:  # dips to 0.7 arm lengths: where ground effect matters for any size
         sc.low_height = 0.7 * float(np.max(np.hypot(*vehicle.rotors.positions.T)))
     return sc
+
+
+def noise_of(sc: Scenario):
+    """The scenario's noise: the default's standard deviations times ``noise_scale``."""
+    from .synth import NoiseConfig
+
+    base = NoiseConfig()
+    return NoiseConfig(position_std=base.position_std * sc.noise_scale, attitude_std=base.attitude_std * sc.noise_scale,
+                       rotor_std=base.rotor_std * sc.noise_scale, dropout=base.dropout)
+
+
+def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float = 100.0, overrides=()) -> dict:
+    """Fly scenario ``sc`` (parameters drawn) as a synthetic flight in ``folder``/s, diagnose it into
+    ``folder``/d; the diagnosis document."""
+    from pathlib import Path
+
+    from ..config import vehicle_path
+    from ..diagnose import run_diagnosis
+    from ..vehicle import load_vehicle
+    from .synth import SynthConfig, write_synth
+    from .trajectory import TrajectoryConfig
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    vehicle = load_vehicle(vehicle_path(sc.vehicle))
+    if sc.effects and isinstance(sc.effects[0], str):
+        materialise(sc, vehicle)
+    traj = TrajectoryConfig(v_max=sc.v_max, tilt_max_deg=sc.tilt_max_deg, low_passes=sc.low_height > 0,
+                            low_height=sc.low_height or TrajectoryConfig().low_height)
+    write_synth(folder / "s", vehicle, sc.effects, SynthConfig(duration=duration, rate=rate, seed=sc.seed,
+                                                              noise=noise_of(sc), trajectory=traj))
+    return run_diagnosis([folder / "s" / "flight.csv"], folder / "s" / "vehicle.yaml", folder / "d", list(overrides),
+                         log=lambda m: None, figures=False)
+
+
+def coverage_cases(family: str, n: int, seed: int = 0) -> list[Scenario]:
+    """``n`` single-effect scenarios of ``family`` (its members in turn)."""
+    members = FAMILIES[family]
+    out = []
+    for i in range(n):
+        r = np.random.default_rng([seed, i, list(FAMILIES).index(family)])
+        out.append(Scenario(seed=5000 + 100 * list(FAMILIES).index(family) + i, effects=[members[i % len(members)]],
+                            vehicle=["asctec_hummingbird", "crazyflie21_brushless"][i % 2],
+                            noise_scale=float(r.uniform(0.5, 2.0)), tilt_max_deg=float(r.uniform(15, 30)),
+                            v_max=float(r.uniform(1.0, 2.5))))
+    return out
+
+
+def z_scores(sc: Scenario, folder, duration: float = 60.0) -> list[float]:
+    """(estimate - truth) / s.e. of each parameter of the scenario's single effect, fitted alone."""
+    from pathlib import Path
+
+    name = sc.effects[0] if isinstance(sc.effects[0], str) else sc.effects[0]["name"]
+    doc = diagnose_scenario(sc, Path(folder) / f"c{sc.seed}", duration,
+                            overrides=[f"diagnose.candidates=[{name}]"])
+    truth = sc.effects[0]["parameters"]
+    got = {e["name"]: e for e in doc["effects"]}.get(name)
+    if got is None:  # not named at all: every parameter missed
+        return [float("inf")] * len(truth)
+    return [(got["parameters"][p] - v) / max(got["stderr"][p], 1e-300) for p, v in truth.items()]
