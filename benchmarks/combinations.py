@@ -31,7 +31,7 @@ os.environ.setdefault("QR_TRACKING", "off")
 import numpy as np  # noqa: E402
 
 from qr.effects import CATALOG  # noqa: E402
-from qr.sim.scenarios import combinations, diagnose_scenario  # noqa: E402
+from qr.sim.scenarios import combinations, diagnose_scenario, up_to_confounding  # noqa: E402
 
 
 def parameter_errors(truth: list[dict], named: list[dict]) -> dict:
@@ -47,22 +47,6 @@ def parameter_errors(truth: list[dict], named: list[dict]) -> dict:
             se = got[e["name"]]["stderr"].get(p, np.nan)
             out[f"{e['name']}.{p}"] = (abs(est - true) / max(abs(true), 1e-12), abs(est - true) / max(se, 1e-300))
     return out
-
-
-def up_to_confounding(named: list[dict], truth: list[str]) -> tuple[bool, list[str]]:
-    """Is the named set the true one once reported confoundings are resolved?  And the false names."""
-    truth = set(truth)
-    got, false = set(), []
-    for e in named:
-        if e["name"] in truth:
-            got.add(e["name"])
-            continue
-        swap = [c for c in e.get("confounded_with", []) if c in truth]
-        if swap:
-            got.add(swap[0])
-        else:
-            false.append(e["name"])
-    return got == truth and not false, false
 
 
 def run(sc, tmp: Path, duration: float, rate: float, verbose: bool):

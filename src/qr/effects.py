@@ -18,6 +18,7 @@ import numpy as np
 
 from .allowed import is_number
 from .errors import QrInputError
+from .flight import HOVER_RATIO_LIMITS
 from .frames import GRAVITY, skew
 
 
@@ -292,14 +293,19 @@ def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
         "rotor_drag": ([0], [20 * m / hover_speed_sum]),
         "wind_force": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
         "body_force_bias": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
-        "thrust_gain": ([0.5], [1.5]),
-        "mass_error": ([-0.5 * m], [1.0 * m]),
+        # a C_T or mass off by more than the rotor-speed check allows (thrust/m g in HOVER_RATIO_LIMITS) is
+        # refused as a unit error before any diagnosis
+        "thrust_gain": ([HOVER_RATIO_LIMITS[0]], [HOVER_RATIO_LIMITS[1]]),
+        "mass_error": ([(HOVER_RATIO_LIMITS[0] - 1) * m], [(HOVER_RATIO_LIMITS[1] - 1) * m]),
         "ground_effect": ([0], [arm**2]),
         "motor_imbalance": ([-0.3] * 4, [0.3] * 4),
         "cg_offset": ([-arm / 2] * 2, [arm / 2] * 2),
         "torque_bias": ([-0.25 * mg * arm] * 3, [0.25 * mg * arm] * 3),
-        "yaw_torque_gain": ([0.5], [1.5]),
-        "inertia_error": (list(-0.5 * J), list(1.0 * J)),
+        # C_Q and J are rarely measured: a file off by an order of magnitude (another airframe's numbers,
+        # rpm for rad/s) is the most useful thing to find; the lower bounds stay off zero (no yaw torque,
+        # no inertia: together they would "explain" the torque residual's own definition)
+        "yaw_torque_gain": ([0.02], [50.0]),
+        "inertia_error": (list(-0.95 * J), list(20.0 * J)),
         "actuator_delay": ([0], [MAX_DELAY_S]),
         "marker_offset": ([-2 * arm] * 3, [2 * arm] * 3),
         "blade_flapping": ([-20 * m * arm], [20 * m * arm]),

@@ -67,6 +67,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..flight import read_flight
     from ..vehicle import load_vehicle, save_vehicle
     from ..segments import flight_segments
+    from .coefficients import coefficient_checks
     from .core import DiagnoseConfig, diagnose, extended_effects
     from .report import make_figures, note_nulls, to_json, write_report
 
@@ -75,7 +76,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
     resolve_filter(to_dict(cfg.filter))  # the filter settings too, before any work
-    vehicle = load_vehicle(vehicle)
+    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
     # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
     measured = [read_flight(f) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
@@ -110,6 +111,10 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
     doc.update(segments_json(doc["flights"], split))
+    doc["vehicle_file"] = coefficient_checks(doc["effects"], vehicle, vehicle_path)
+    if doc["vehicle_file"]:
+        doc["verdict"] += " " + " ".join(c["statement"][0].upper() + c["statement"][1:] + "."
+                                         for c in doc["vehicle_file"])
     strict = note_nulls(doc)  # diagnosis.json: null (and a note) where the report prints nan
     ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
     with atomic_dir(out, force=force, command="qr diagnose") as tmp:

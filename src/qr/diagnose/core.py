@@ -16,7 +16,8 @@ from ..dynamics import residuals
 from ..effects import CATALOG, Signals, plausible_bounds, total_term
 from ..identification import delay as delay_mod
 from ..identification.bootstrap import bootstrap
-from ..identification.normal_equations import BlockStats, Columns, accumulate, design, fit, loss
+from ..identification.normal_equations import (BlockStats, Columns, accumulate, bounded_noise, design, fit, loss,
+                                                regressor_noise)
 from ..identification.selection import ROWS, select, torque_arbitration
 from ..states import signals
 from . import replay as replay_mod
@@ -25,6 +26,10 @@ from .settings import DiagnoseConfig  # noqa: F401  (the settings and their allo
 
 AXES = ["fx", "fy", "fz", "tx", "ty", "tz"]
 CHUNK = 20000
+# Errors in variables: regressors from the other cross-fitting half carry their own noise, which
+# attenuates slopes and favours whichever explanation uses the least noisy signal; the halves'
+# regressor differences at the same stamps measure that noise, and it is taken out of XᵀWX.
+EIV = True
 
 
 @dataclass
@@ -43,6 +48,12 @@ class Prepared:
     # What effect designs read: ``s`` with the rotor signals delayed by the actuator-delay estimate
     # and the delay's design column (``at_delay``); None: ``s`` itself.  Labels never change.
     ds: Signals | None = None
+    # cross-fitting data: row i + pair_offset is row i's stamp with the other half's label and regressors
+    pair_offset: int = 0
+    # the rotor signals the labels themselves were built from (cross-fitting: the label's own half); the
+    # exact delay term is a transform of the label, not a regressor: W(u(t - d)) - W(u(t)) from the same
+    # measurements leaves rotor noise of the same size whatever d, so the delay search is unbiased
+    own_u2: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def design_s(self) -> Signals:
@@ -120,7 +131,8 @@ def prepare_cross(pairs: list[tuple[pd.DataFrame, pd.DataFrame]], vehicle, cfg: 
     s = Signals.concat([b.s, a.s])
     cat = lambda k: np.concatenate([getattr(a, k), getattr(b, k)])  # noqa: E731
     return Prepared(s, cat("y"), cat("sd"), cat("t"), cat("flight"), cat("train"), cat("test"), cat("block"),
-                    a.windows)
+                    a.windows, pair_offset=len(a.t),
+                    own_u2=(np.concatenate([a.s.u2_force, b.s.u2_force]), np.concatenate([a.s.u2_torque, b.s.u2_torque])))
 
 
 def weights(sd: np.ndarray) -> np.ndarray:
@@ -148,12 +160,22 @@ def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = N
            for _ in row_sets]
     lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
     ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
+    n = prep.pair_offset
+    if n and EIV:  # cross-fitting halves: rows i and i + n, labels and regressors swapped
+        idx = idx[idx < n]
+    noise = [np.zeros((n_blocks, p, p)) for _ in row_sets]
     for start in range(0, idx.size, CHUNK):
         sl = idx[start:start + CHUNK]
-        X = design(s_design.take(sl), vehicle, cols)
-        for a, w in zip(acc, ws):
-            for total, part in zip(a, accumulate(X, y[sl], w[sl], prep.block[sl], n_blocks)):
-                total += part
+        parts = [sl, sl + n] if n and EIV else [sl]
+        Xs = [design(s_design.take(r), vehicle, cols) for r in parts]
+        for a, N, w in zip(acc, noise, ws):
+            for r, X in zip(parts, Xs):
+                for total, part in zip(a, accumulate(X, y[r], w[r], prep.block[r], n_blocks)):
+                    total += part
+            if len(Xs) == 2:  # the regressors' own noise, which the fit would otherwise count as signal
+                N += regressor_noise(Xs[1] - Xs[0], 0.5 * (w[parts[0]] + w[parts[1]]), prep.block[sl], n_blocks)
+    for a, N in zip(acc, noise):
+        a[0] -= bounded_noise(a[0], N)
     out = [BlockStats(*a, cols, lb, ub) for a in acc]
     return out if many else out[0]
 
@@ -221,7 +243,8 @@ def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, c
 
 def exact_delay_term(prep: Prepared, vehicle, d: float) -> np.ndarray:
     """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6)."""
-    return delay_mod.exact_term(prep.t, prep.flight, prep.s.u2_force, prep.s.u2_torque, vehicle.rotors.matrix, d)
+    u2f, u2t = prep.own_u2 or (prep.s.u2_force, prep.s.u2_torque)
+    return delay_mod.exact_term(prep.t, prep.flight, u2f, u2t, vehicle.rotors.matrix, d)
 
 
 def at_delay(prep: Prepared, vehicle, d: float, column: str = "secant", shift: float | None = None) -> Signals:
@@ -321,7 +344,11 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         prep.ds = at_delay(prep, vehicle, d0, shift=0.0)
     step("bootstrap")
     boot = bootstrap(boot_stats, named, cfg.selection.bootstrap, seed) if named else np.zeros((0, 0))
-    se = boot.std(axis=0) if named else np.zeros(0)
+    # resampling B blocks underestimates the variance of p fitted parameters by (B - p)/B (as a
+    # sample variance without its degrees-of-freedom correction): the s.e. carry that factor back
+    used = int(np.count_nonzero(boot_stats.n)) if named else 0
+    dof = np.sqrt(used / (used - boot.shape[1])) if named and used > boot.shape[1] + 1 else 1.0
+    se = boot.std(axis=0, ddof=1) * dof if named else np.zeros(0)
 
     test = prep.test
     s_test = prep.design_s.take(np.flatnonzero(test))

@@ -13,11 +13,14 @@ import numpy as np
 from .normal_equations import BlockStats, solve
 
 
-def block_counts(n_blocks: int, n: int, seed: int) -> np.ndarray:
-    """``(n, n_blocks)`` multiplicities of each block in each replicate."""
+def block_counts(n_blocks: int, n: int, seed: int, group: int = 1) -> np.ndarray:
+    """``(n, n_blocks)`` multiplicities of each block in each replicate; runs of ``group`` consecutive
+    blocks are drawn together."""
     rng = np.random.default_rng(seed)
-    return np.array([np.bincount(rng.integers(0, n_blocks, n_blocks), minlength=n_blocks) for _ in range(n)],
-                    dtype=float)
+    g = max(n_blocks // group, 1)
+    of = np.minimum(np.arange(n_blocks) // group, g - 1)
+    counts = np.array([np.bincount(rng.integers(0, g, g), minlength=g) for _ in range(n)], dtype=float)
+    return counts[:, of]
 
 
 def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: np.ndarray | None = None
@@ -36,9 +39,12 @@ def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: 
 def solve_many(Gb: np.ndarray, hb: np.ndarray, lb=None, ub=None) -> np.ndarray:
     """``solve`` for a stack of normal equations (n, p, p), (n, p): all at once, bounded ones one by one."""
     p = Gb.shape[1]
-    d = np.sqrt(np.maximum(np.einsum("nii->ni", Gb), 1e-300))
+    diag = np.einsum("nii->ni", Gb)
+    d = np.sqrt(np.maximum(diag, 1e-12 * np.maximum(np.abs(diag).max(axis=1, keepdims=True), 1e-300)))
     Gn = Gb / (d[:, :, None] * d[:, None, :])
     Gn[:, np.arange(p), np.arange(p)] += 1e-9
+    low = np.linalg.eigvalsh(Gn)[:, 0]  # as `solve`: a direction lost to regressor noise is held at ridge
+    Gn[:, np.arange(p), np.arange(p)] += np.maximum(1e-6 - low, 0.0)[:, None]
     out = np.linalg.solve(Gn, (hb / d)[:, :, None])[:, :, 0] / d
     if lb is not None:
         for i in np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1)):

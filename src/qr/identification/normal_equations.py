@@ -112,13 +112,47 @@ def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray
     return G, h, s, n
 
 
+def bounded_noise(G: np.ndarray, N: np.ndarray, keep: float = 0.1) -> np.ndarray:
+    """``N`` (B, p, p) scaled per column so that ``G - N`` keeps at least ``keep`` of each column's
+    variance over all blocks: a column that is mostly regressor noise is not corrected into nonsense."""
+    g, n = np.einsum("bii->i", G), np.einsum("bii->i", N)
+    c = np.ones_like(g)
+    over = n > (1 - keep) * g
+    c[over] = np.maximum((1 - keep) * g[over], 0.0) / n[over]
+    r = np.sqrt(c)
+    return N * r[None, :, None] * r[None, None, :]
+
+
+def regressor_noise(D: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Per-block ``Σ Dᵀ W D`` of design differences ``D`` (N, 6, p) between the cross-fitting halves at the
+    same stamps: their regressor noise, to take out of ``G`` (errors in variables)."""
+    p = D.shape[2]
+    N = np.zeros((n_blocks, p, p))
+    ok = np.isfinite(D).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
+    edges = np.flatnonzero(np.diff(block_id)) + 1
+    for idx in np.split(np.arange(len(block_id)), edges):
+        idx = idx[ok[idx]]
+        if idx.size:
+            Db = D[idx].reshape(idx.size * 6, p)
+            N[block_id[idx[0]]] += Db.T @ (Db * w[idx].reshape(-1)[:, None])
+    return N
+
+
 def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -> np.ndarray:
-    """Least squares from normal equations (scaled, tiny ridge), within bounds if given."""
+    """Least squares from normal equations (scaled, tiny ridge), within bounds if given.
+
+    ``G`` corrected for regressor noise may lose definiteness where the noise dominates a direction;
+    that direction is then held at its least-informative (ridge) value.
+    """
     if G.size == 0:
         return np.zeros(0)
-    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    diag = np.diag(G)
+    d = np.sqrt(np.maximum(diag, 1e-12 * max(float(np.abs(diag).max()), 1e-300)))
     Gs = G / np.outer(d, d)
     Gs[np.diag_indices_from(Gs)] += ridge
+    low = np.linalg.eigvalsh(Gs)[0] if len(Gs) > 1 else Gs[0, 0]
+    if low < 1e-6:
+        Gs[np.diag_indices_from(Gs)] += 1e-6 - low
     theta = np.linalg.solve(Gs, h / d) / d
     if lb is None or (np.all(theta >= lb) and np.all(theta <= ub)):
         return theta

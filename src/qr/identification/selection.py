@@ -37,8 +37,12 @@ from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit
 
 # Never named together (spec): the same term in force (gain = m/(m + dm)), and a C_T error is an
 # all-equal motor imbalance (so a motor imbalance's mean is a mass error in force too).
+# J_z α_z = C_Q-torque makes a C_Q error an inertia error about z: named together their z parts would
+# split one term arbitrarily.
 SAME_TERM = (frozenset({"thrust_gain", "mass_error"}), frozenset({"thrust_gain", "motor_imbalance"}),
-             frozenset({"mass_error", "motor_imbalance"}))
+             frozenset({"mass_error", "motor_imbalance"}), frozenset({"yaw_torque_gain", "inertia_error"}))
+# confounded whatever the data: an inertia error's z part is a C_Q error
+PART_CONFOUNDED = {"inertia_error": ["yaw_torque_gain"]}
 # Pairs that are the same term on some rows and differ only on others: a swap between them is judged
 # on those rows alone (``rows`` statistics of ``select``).  A C_T and a mass error are the same in
 # force, told apart by the roll/pitch torque a C_T error scales; J_z α_z = C_Q-torque makes a C_Q
@@ -238,7 +242,7 @@ def resolve_equivalents(cv: CrossValidator, level, admissible, cfg: SelectionCon
     """
     L0, S0 = level[0]
     pool = dict((S, L) for L, S in level)
-    judge = dict(swaps(S0)) if rows else {}
+    judge = {S: r for S, r in swaps(S0) if set(S) <= set(cv.stats.cols.effects)} if rows else {}
     for S in judge:
         if S not in pool and admissible(S) is None:
             pool[S] = cv.loss(S)
@@ -259,11 +263,13 @@ def resolve_equivalents(cv: CrossValidator, level, admissible, cfg: SelectionCon
     for S, _ in swaps(chosen) if rows else []:
         if S in pool and t_swap(chosen, S) >= cfg.t_equivalent:
             L, chosen = pool[S], S
-    confounded = {e: [] for e in chosen}
+    confounded = {e: [c for c in PART_CONFOUNDED.get(e, []) if c in cv.stats.cols.effects] for e in chosen}
     for _, S in eq:
         gone, new = set(chosen) - set(S), set(S) - set(chosen)
         if len(gone) == 1 and len(new) == 1:
-            confounded[gone.pop()].append(new.pop())
+            e, c = gone.pop(), new.pop()
+            if c not in confounded[e]:
+                confounded[e].append(c)
     equivalent_sets = [{"effects": list(S), "loss": Lx, "t": cv.paired_t(S, S0) if S != S0 else 0.0}
                        for Lx, S in eq if S != chosen]
     return list(chosen), {e: sorted(c, key=lambda x: simplicity([x])) for e, c in confounded.items()}, \

@@ -207,3 +207,21 @@ def z_scores(sc: Scenario, folder, duration: float = 60.0) -> list[float]:
     if got is None:  # not named at all: every parameter missed
         return [float("inf")] * len(truth)
     return [(got["parameters"][p] - v) / max(got["stderr"][p], 1e-300) for p, v in truth.items()]
+
+
+def up_to_confounding(named: list[dict], truth: list[str]) -> tuple[bool, list[str]]:
+    """Is the named set the true one once the confoundings the diagnosis reports are resolved (the spec:
+    name one of a pair the data cannot tell apart, report the other in ``confounded_with``)?  And the
+    false names: named effects neither true nor confounded with a true one."""
+    truth = set(truth)
+    got, false = set(), []
+    for e in named:
+        if e["name"] in truth:
+            got.add(e["name"])
+            continue
+        swap = [c for c in e.get("confounded_with", []) if c in truth]
+        if swap:
+            got.add(swap[0])
+        else:
+            false.append(e["name"])
+    return got == truth and not false, false
