@@ -250,13 +250,29 @@ def _main(argv):
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT
-        except Terminated:
-            print("qr: terminated; nothing half-written was left", file=sys.stderr)
-            return 128 + 15
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemError) as e:
+            # an interrupt that lands while a compiled (numba) function is called comes back wrapped in
+            # a SystemError ("returned a result with an exception set")
+            stop = _interrupt_in(e)
+            if stop is None:
+                raise
+            if isinstance(stop, Terminated):
+                print("qr: terminated; nothing half-written was left", file=sys.stderr)
+                return 128 + 15
             print("qr: interrupted; nothing half-written was left", file=sys.stderr)
             return 130
     return 0
+
+
+def _interrupt_in(e: BaseException):
+    """The KeyboardInterrupt (or Terminated) that ``e`` is or was raised while handling, if any."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
 
 
 if __name__ == "__main__":
