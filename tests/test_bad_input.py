@@ -346,7 +346,7 @@ def test_exponent_without_a_dot_is_a_number(tmp_path):
      ["effect linear_drag parameter kx is 'abc', not a finite number"]),
     ([{"name": "thrust_gain", "parameters": {"gain": True}}], ["parameter gain is True, not a finite number"]),
     ([{"name": "thrust_gain", "parameters": {"gain": -5}}],
-     ["parameter gain=-5 is outside the range [0.333, 3]", "gain in [0.5, 1.5] (no effect: gain=1)"]),
+     ["parameter gain=-5 is outside the range [0.333, 3]", "gain in [0.333, 3] (no effect: gain=1)"]),
     ([{"name": "linear_drag", "parameters": [0.3, 0.3, 0.1]}], ["not a mapping of names to values"]),
     (["linear_drag"], ["effect entry 'linear_drag' is not a mapping with a name"]),
 ])
@@ -393,7 +393,7 @@ def test_synth_high_dropout_ends_and_keeps_first_and_last_rows(tmp_path, capsys)
                      "--effect linear_drag:kx=VALUE,ky=VALUE,kz=VALUE", "kx, ky, kz each in [0, 14] N s/m"]),
     ("linear_drag:kx=0.3", ["lacks parameter(s) ky, kz (only kx given)", "kx, ky, kz each in [0, 14] N s/m"]),
     ("thrust_gain:gain=-5", ["parameter gain=-5 is outside the range [0.333, 3]",
-                             "gain in [0.5, 1.5] (no effect: gain=1)"]),
+                             "gain in [0.333, 3] (no effect: gain=1)"]),
     ("cg_offset:rx=0.5,ry=0", ["rx=0.5 is outside the range [-0.085, 0.085]"]),  # half the 0.17 m arm
     ("linear_drag:kx=abc,ky=0,kz=0", ["linear_drag parameter kx='abc' is not a number"]),
     ("linear_drag:kx=nan,ky=0,kz=0", ["parameter kx is nan, not a finite number"]),
