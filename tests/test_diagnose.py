@@ -179,6 +179,17 @@ def test_a_vehicle_file_with_another_airframe_s_inertia_is_named_with_a_c_t_erro
     for i in range(3):
         assert factors[f"inertia[{i}]"] == pytest.approx(5.0, rel=0.1)
     assert "Jxx (inertia[0]) in " in doc["verdict"] and "looks x5 too small" in doc["verdict"]
+    # without the inertia error among the candidates, the torque rows would need a C_T error of 0.216
+    # (below the 1/3 bound): they cannot arbitrate C_T, which is fitted on the force rows, where it is
+    # the same term as a mass error (the spec's rule, and the Crazyflie situation before)
+    doc = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "fifth.yaml", tmp_path / "d5x",
+                        ["diagnose.exclude=[inertia_error,yaw_torque_gain]"], log=lambda m: None, figures=False)
+    arb = doc["selection"]["torque_arbitration"]["thrust_gain"]
+    assert arb["force_rows"][0] == pytest.approx(1.08, abs=0.2 * 0.08)
+    assert 1.08 / 5 - 0.02 <= arb["torque_rows"][0] < 1 / 3
+    named = {e["name"]: e for e in doc["effects"]}
+    assert named["thrust_gain"]["parameters"]["gain"] == pytest.approx(1.08, abs=0.2 * 0.08)
+    assert "mass_error" in named["thrust_gain"]["confounded_with"] and "mass_error" not in named
 
 
 def test_a_c_q_ten_times_too_small_is_the_finding(tmp_path):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .normal_equations import BlockStats, solve
+from .normal_equations import BlockStats, positive_definite, solve
 
 
 def block_counts(n_blocks: int, n: int, seed: int, group: int = 1) -> np.ndarray:
@@ -43,8 +43,9 @@ def solve_many(Gb: np.ndarray, hb: np.ndarray, lb=None, ub=None) -> np.ndarray:
     d = np.sqrt(np.maximum(diag, 1e-12 * np.maximum(np.abs(diag).max(axis=1, keepdims=True), 1e-300)))
     Gn = Gb / (d[:, :, None] * d[:, None, :])
     Gn[:, np.arange(p), np.arange(p)] += 1e-9
-    low = np.linalg.eigvalsh(Gn)[:, 0]  # as `solve`: a direction lost to regressor noise is held at ridge
-    Gn[:, np.arange(p), np.arange(p)] += np.maximum(1e-6 - low, 0.0)[:, None]
+    low = np.linalg.eigvalsh(Gn)[:, 0]  # as `solve`: a direction lost to regressor noise is held at the floor
+    for i in np.flatnonzero(low < 1e-6):
+        Gn[i] = positive_definite(Gn[i])
     out = np.linalg.solve(Gn, (hb / d)[:, :, None])[:, :, 0] / d
     if lb is not None:
         for i in np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1)):

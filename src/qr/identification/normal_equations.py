@@ -138,6 +138,16 @@ def regressor_noise(D: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks
     return N
 
 
+def positive_definite(Gs: np.ndarray, floor: float = 1e-6) -> np.ndarray:
+    """A unit-diagonal-scaled Gram matrix with its eigenvalues held at ``floor`` or above (unchanged when
+    they already are): directions the regressor-noise correction emptied carry no information."""
+    lam, V = np.linalg.eigh(Gs)
+    if lam[0] >= floor:
+        return Gs
+    out = (V * np.maximum(lam, floor * max(lam[-1], 1.0))) @ V.T
+    return (out + out.T) / 2
+
+
 def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -> np.ndarray:
     """Least squares from normal equations (scaled, tiny ridge), within bounds if given.
 
@@ -150,9 +160,7 @@ def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -
     d = np.sqrt(np.maximum(diag, 1e-12 * max(float(np.abs(diag).max()), 1e-300)))
     Gs = G / np.outer(d, d)
     Gs[np.diag_indices_from(Gs)] += ridge
-    low = np.linalg.eigvalsh(Gs)[0] if len(Gs) > 1 else Gs[0, 0]
-    if low < 1e-6:
-        Gs[np.diag_indices_from(Gs)] += 1e-6 - low
+    Gs = positive_definite(Gs)
     theta = np.linalg.solve(Gs, h / d) / d
     if lb is None or (np.all(theta >= lb) and np.all(theta <= ub)):
         return theta
