@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from qr.identification.normal_equations import BlockStats, Columns, at_bound, bounded_noise, regressor_noise, solve
-from qr.identification.selection import (SelectionConfig, better, choose_size, consistent, resolve_equivalents,
-                                         torque_arbitration)
+from qr.identification.selection import (SelectionConfig, better, choose_size, consistent, pinned_down,
+                                         resolve_equivalents, torque_arbitration)
 
 
 def test_regressor_noise_correction_undoes_the_attenuation():
@@ -170,3 +170,59 @@ def test_torque_rows_that_need_a_c_t_error_beyond_any_plausible_one_cannot_arbit
     assert arb["thrust_gain"]["force_rows"] == pytest.approx([0.96])
     assert arb["thrust_gain"]["torque_rows"] == pytest.approx([0.2], abs=1e-6)
     assert torque_arbitration((f, f)) == {}
+
+
+def _blocks(X, y, blocks=20):
+    """Per-block normal equations of y on the columns of X, in ``blocks`` equal blocks."""
+    parts = np.array_split(np.arange(len(y)), blocks)
+    G = np.stack([X[i].T @ X[i] for i in parts])
+    h = np.stack([X[i].T @ y[i] for i in parts])
+    s = np.array([y[i] @ y[i] for i in parts])
+    return G, h, s, np.array([len(i) for i in parts], float)
+
+
+def test_two_effects_that_trade_off_along_one_column_are_not_both_named():
+    """y = x1 + noise, a second column x2 = x1 + 1 % noise (a C_T error and a constant body-z force while
+    the thrust barely changes).  Fitted together, the pair splits x1's coefficient along a direction the
+    data barely fix: one of the two stays within 3 s.e. of no effect, so the pair is not named.  With an
+    independent x2 that is really there (y = x1 + 0.5 x2), both are pinned down."""
+    rng = np.random.default_rng(1)
+    n = 4000
+    x1 = rng.standard_normal(n)
+    cfg = SelectionConfig(seed=0)
+    e = ["rotor_drag", "blade_flapping"]
+    x2 = x1 + 0.01 * rng.standard_normal(n)
+    y = x1 + 0.5 * rng.standard_normal(n)
+    G, h, s, cnt = _blocks(np.column_stack([x1, x2]), y)
+    assert "not pinned down" in pinned_down(BlockStats(G, h, s, cnt, Columns.of(e)), e, cfg)
+    x2 = rng.standard_normal(n)
+    y = x1 + 0.5 * x2 + 0.5 * rng.standard_normal(n)
+    G, h, s, cnt = _blocks(np.column_stack([x1, x2]), y)
+    assert pinned_down(BlockStats(G, h, s, cnt, Columns.of(e)), e, cfg) is None
+
+
+def test_an_effect_is_pinned_down_jointly_not_parameter_by_parameter():
+    """A motor imbalance beside a body-z force: its common mode (all d_i equal) is the force's column,
+    so every single d_i has a large s.e. (|t| < 3), but the difference between rotors is well fixed
+    (Wald test on the effect's four parameters): pinned down.  The truth: d = (0.3, -0.3, 0.3, -0.3) and a
+    body force (0.3, 0.3, 0.2)."""
+    rng = np.random.default_rng(2)
+    n = 4000
+    common = rng.standard_normal(n)
+    diff = rng.standard_normal((n, 4))
+    diff -= diff.mean(axis=1, keepdims=True)  # the rotors' differences (roll, pitch, yaw) sum to zero
+    U = common[:, None] + 0.2 * diff
+    F = common + 0.002 * rng.standard_normal(n)  # the body force, nearly the rotors' common mode
+    d = np.array([0.3, -0.3, 0.3, -0.3])
+    e = ["body_force_bias", "motor_imbalance"]
+    # the force (0.3, 0.3, 0.2): its x and y columns are its own, its z one is the rotors' common mode
+    X = np.column_stack([rng.standard_normal((n, 2)), F, U])
+    y = X @ np.r_[0.3, 0.3, 0.2, d] + 0.5 * rng.standard_normal(n)
+    G, h, s, cnt = _blocks(X, y)
+    stats = BlockStats(G, h, s, cnt, Columns.of(e))
+    from qr.identification.bootstrap import bootstrap
+    from qr.identification.normal_equations import fit
+    sl = stats.cols.slices["motor_imbalance"]
+    t = np.abs(fit(stats, e)[sl]) / bootstrap(stats, e, 100, 0).std(axis=0)[sl]
+    assert t.max() < 3  # one by one, no d_i is clearly nonzero ...
+    assert pinned_down(stats, e, SelectionConfig(seed=0)) is None  # ... jointly, the imbalance is

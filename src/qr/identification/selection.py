@@ -30,9 +30,11 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
+from scipy.stats import chi2, norm
 
 from ..allowed import check_fields, setting
 from ..effects import CATALOG
+from .bootstrap import bootstrap
 from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit, solve
 
 # Never named together (spec): the same term in force (gain = m/(m + dm)), and a C_T error is an
@@ -71,6 +73,10 @@ class SelectionConfig:
     # sets of one size closer than min_gain and this many s.e. (paired, per block) are equivalent
     t_equivalent: float = setting(2.0, gt=0)
     beam: int = setting(12, "integer", ge=1)  # sets kept per size in the search
+    # every effect of a named set must have a parameter this many s.e. (block bootstrap, joint fit) from
+    # its neutral value: a pair that trades off along a direction the data barely constrain is not named
+    t_name: float = setting(3.0, ge=0)
+    check_bootstrap: int = setting(100, "integer", ge=10)
     # a set is inconsistent when its joint fit leaves the force or the torque rows this much (relative) ...
     consistency_rel: float = setting(0.05, ge=0)
     # ... and this many s.e. (per block) worse than their own fit
@@ -141,6 +147,33 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
     return None
 
 
+def pinned_down(stats: BlockStats, effects: list[str], cfg: SelectionConfig) -> str | None:
+    """Does the joint fit pin every effect down: its parameters jointly ``t_name`` s.e. from neutral?
+
+    Two effects that are nearly the same column on this data (a C_T error and a constant body-z force
+    while the thrust barely changes, on a 5 s flight) trade off: jointly fitted, both move far (a C_T
+    of 0.5 against +0.12 N) with huge standard errors, while the joint loss barely beats either alone.
+    The test is joint per effect (Wald, block-bootstrap covariance): a motor imbalance beside a body
+    force has a poorly fixed common mode but a well fixed difference between rotors.
+    """
+    if len(effects) < 2 or cfg.t_name <= 0:
+        return None
+    theta = fit(stats, effects)
+    reps = bootstrap(stats, effects, cfg.check_bootstrap, cfg.seed)
+    cols = Columns.of(effects)
+    for e in effects:
+        sl = cols.slices[e]
+        k = sl.stop - sl.start
+        wald = float(theta[sl] @ np.linalg.pinv(np.atleast_2d(np.cov(reps[:, sl], rowvar=False)),
+                                                 hermitian=True) @ theta[sl])
+        # the chi-square quantile of the two-sided normal tail beyond t_name, for k parameters
+        limit = float(chi2.isf(2 * norm.sf(cfg.t_name), k))
+        if wald < limit:
+            return (f"not pinned down beside {', '.join(x for x in effects if x != e)}: jointly within "
+                    f"{cfg.t_name:g} s.e. of no effect (Wald {wald:.1f} < {limit:.1f})")
+    return None
+
+
 class Admissibility:
     """Step 1, cached per set: why a set of effects cannot be named together (None: it can)."""
 
@@ -159,6 +192,9 @@ class Admissibility:
             return "the same term as another named effect"
         if at_bound(self.stats, effects):
             return "a parameter sits on its plausibility bound"
+        weak = pinned_down(self.stats, effects, self.cfg)
+        if weak:
+            return weak
         return consistent(self.stats, self.row_stats, effects, self.cfg)
 
 
