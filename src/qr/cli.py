@@ -15,6 +15,7 @@ commands:
   synth      synthetic flight with hidden effects (flight.csv, vehicle.yaml, truth.json)
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
+  evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
 
 examples:
   qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
@@ -22,6 +23,7 @@ examples:
   qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 --rate 100 --seed 1 \\
       --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01,ry=0 --out synth1
   qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
+  qr evaluate synth1/flight.csv --vehicle synth1/vehicle.yaml --vehicle diag1/extended_vehicle.yaml --out eval1
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
 
@@ -104,6 +106,18 @@ def _parser() -> argparse.ArgumentParser:
                    help="canonical flight(s), and optional Hydra overrides (conf/diagnose/default.yaml), "
                         "before or after the options")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (nominal, or an extended one to build on)")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+
+    s = sub.add_parser("evaluate", help="multi-step rollout of vehicle models (../shared/spec/evaluate.md)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  qr evaluate flight.csv --vehicle v.yaml --vehicle diag/extended_vehicle.yaml "
+                              "--out ev\n  qr evaluate a.csv b.csv --vehicle v.yaml --out ev evaluate.horizon=100\n"
+                              "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png")
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
+                   help="canonical flight(s), and optional Hydra overrides (conf/evaluate/default.yaml)")
+    s.add_argument("--vehicle", required=True, action="append",
+                   help="vehicle YAML to score (repeatable; the first one also filters and is the references' nominal)")
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
     p.commands = sub.choices  # name -> subparser (for _parse)
@@ -210,6 +224,16 @@ def _cmd_diagnose(a):
     run_diagnosis(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
+def _cmd_evaluate(a):
+    from .evaluate import run_evaluation
+
+    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
+    overrides = [f for f in a.flights if f not in flights]
+    if not flights:
+        raise QrInputError(None, "no flight given", "qr evaluate FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     sys.stderr.write(_format_warning(message, category, filename, lineno))
 
@@ -226,9 +250,9 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
     the options (argparse's intermixed parsing, which only a parser without subcommands offers)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args, rest = parser.parse_known_args(argv)
-    if args.command == "diagnose":
-        rest = argv[argv.index("diagnose") + 1:]
-        args = parser.commands["diagnose"].parse_intermixed_args(rest, argparse.Namespace(command="diagnose"))
+    if args.command in ("diagnose", "evaluate"):
+        rest = argv[argv.index(args.command) + 1:]
+        args = parser.commands[args.command].parse_intermixed_args(rest, argparse.Namespace(command=args.command))
     elif rest:
         parser.error(f"unrecognized arguments: {' '.join(rest)}")
     return args
@@ -246,7 +270,7 @@ def _main(argv):
     with sigterm_raises():
         try:
             {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary,
-             "diagnose": _cmd_diagnose}[args.command](args)
+             "diagnose": _cmd_diagnose, "evaluate": _cmd_evaluate}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT

@@ -104,7 +104,14 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     _, _, states, pairs, pieces = (list(x) for x in zip(*work))
     say("identifying effects")
     res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
+    from ..evaluate import EvaluateConfig
+    from .core import rollout_all
     from .remainder import remainder
+
+    say("rolling out the nominal and the extended model on the held-out part")
+    ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
+    res["rollout"] = rollout_all(states, pieces, vehicle, res["effects"], res["prep"], ecfg.horizon,
+                                 ecfg.max_input_gap, 0.0)
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)

@@ -448,3 +448,24 @@ def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
         res[key] = {"errors": err, "summary": replay_mod.summarise(err, cfg.horizon_s, start_test.to_numpy()),
                     "growth": replay_mod.growth(err[start_test.to_numpy()], cfg.horizon_s)}
     return res
+
+
+def rollout_all(states_list, measured_list, vehicle, effects, prep: Prepared, horizon: int, max_input_gap: int,
+                trim_s: float) -> dict:
+    """Multi-step rollout (qr.rollout) of the nominal and the extended model and the references, from the
+    held-out starts of every state table (a flight or a gap-free segment of one): the spec's block."""
+    from .. import rollout
+    from ..evaluate import pieces
+
+    models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicle), "nominal": (vehicle, list(vehicle.effects)),
+              "extended": (vehicle, list(vehicle.effects) + extended_effects(effects))}
+    owner = flight_of(states_list)
+    parts = []
+    for i, (st, meas) in enumerate(zip(states_list, measured_list)):
+        st, meas, keep = pieces(st, meas, trim_s)
+        keep &= st["t"].to_numpy() >= prep.windows[owner[i]]["test"][0]
+        if keep.any():
+            parts.append(rollout.score(st, meas, horizon, max_input_gap, models, keep))
+    pooled = rollout.pool(parts)
+    return {"horizon": horizon, "part": "held-out",
+            "models": {k: rollout.summary(*v) for k, v in pooled.items()}}

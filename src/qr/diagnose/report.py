@@ -48,6 +48,7 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
             "extended_attitude_rmse_deg": float(f"{rep_e.get('attitude_rmse_deg', float('nan')):.4g}"),
             "windows": rep_n.get("windows", 0),
         },
+        "rollout": res.get("rollout", {}),
         "noise_floor": {"force_rmse": _r(res["noise_floor_rmse"][:3]), "torque_rmse": _r(res["noise_floor_rmse"][3:]),
                         "source": res.get("noise_source", "filter covariance")},
         "remainder": res.get("remainder", {}),
@@ -220,6 +221,15 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
         L.append(f"| {k} | {r[f'{k}_position_rmse']:.4g} | {ax[0]:.3g} | {ax[1]:.3g} | {ax[2]:.3g} | "
                  f"{r[f'{k}_attitude_rmse_deg']:.3g} |")
     L.append("")
+    ro = doc.get("rollout") or {}
+    if ro.get("models"):
+        from ..evaluate import table
+
+        L.append(f"## Multi-step rollout (held-out part, every start, H = {ro['horizon']} steps; `qr evaluate`)\n")
+        L.append("Mean absolute error at step h: p (m), v (m/s), R (rad), w (rad/s); `hold` holds the state, "
+                 "`rate_frozen` is the benchmark's physics baseline (nominal thrust, no drag, body rate held).\n")
+        L += table(ro["models"], ro["horizon"])
+        L.append("")
     L.append("## Figures\n")
     for title, name in figs.items():
         L.append(f"### {title}\n\n![{title}](figures/{name})\n")

@@ -1,0 +1,64 @@
+"""Multi-step rollout on measured flights, held out by flight (issue 13's yardstick).
+
+    .venv/bin/python benchmarks/rollout.py                       # brushless set (results/ingest/brushless)
+    .venv/bin/python benchmarks/rollout.py --set payload --vehicle results/diagnosis/payload/vehicle.yaml
+
+Every third flight (sorted by name) is held out; `qr diagnose` runs on the others (the workflow's
+overrides for these short flights); `qr evaluate` then scores the nominal and the extended vehicle on
+the held-out flights beside the references `hold` and `rate_frozen` (the public benchmark's
+physics baseline).  Prints MAE at h = 1, 10, 50 per model and each model's ratio to `rate_frozen`
+at h = 50.  Needs the workflow's ingest (`snakemake --cores 2 ingest_all` or a full run).
+"""
+
+import argparse
+import glob
+import os
+import tempfile
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("QR_TRACKING", "off")
+
+from qr import rollout  # noqa: E402
+from qr.diagnose import run_diagnosis  # noqa: E402
+from qr.evaluate import run_evaluation  # noqa: E402
+
+WORKFLOW_OVERRIDES = ["diagnose.block_s=1.0", "diagnose.gap_s=0.5", "diagnose.horizon_s=0.5"]
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--set", default="brushless")
+    ap.add_argument("--vehicle", default="conf/vehicle/crazyflie21_brushless.yaml")
+    ap.add_argument("--results", default="results")
+    ap.add_argument("--extra", action="append", default=[], help="more diagnose overrides")
+    a = ap.parse_args()
+    flights = sorted(glob.glob(f"{a.results}/ingest/{a.set}/*.parquet"))
+    if not flights:
+        raise SystemExit(f"no flights in {a.results}/ingest/{a.set}: run the workflow's ingest first")
+    test = flights[2::3]
+    train = [f for f in flights if f not in test]
+    tmp = Path(tempfile.mkdtemp(prefix="qr-rollout-"))
+    quiet = lambda m: None  # noqa: E731
+    print(f"{a.set}: diagnosing {len(train)} training flights, evaluating {len(test)} held-out flights")
+    doc = run_diagnosis(train, a.vehicle, tmp / "diag", WORKFLOW_OVERRIDES + a.extra, track=False, log=quiet,
+                        figures=False)
+    print("named:", ", ".join(e["name"] for e in doc["effects"]) or "nothing")
+    ext = tmp / "diag" / "extended_vehicle.yaml"
+    ev = run_evaluation(test, [a.vehicle, str(ext)], tmp / "eval", log=quiet, figures=False)
+    names = {Path(a.vehicle).name: "nominal", "extended_vehicle.yaml": "extended"}
+    models = {names.get(k, k): v for k, v in ev["models"].items()}
+    print(f"\nheld-out flights: {len(test)}, dt {ev['dt'] * 1e3:.1f} ms, H = {ev['horizon']}")
+    print(f"{'model':12s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+    for name, block in models.items():
+        print(f"{name:12s}" + "".join(f"{rollout.at(block, h, q):9.4f}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+    base = models["rate_frozen"]
+    print("\nratio to rate_frozen at h = 50 (< 1: better than the benchmark's physics baseline)")
+    for name, block in models.items():
+        print(f"{name:12s}" + "".join(f"  {q} {rollout.at(block, 50, q) / rollout.at(base, 50, q):6.2f}"
+                                      for q in rollout.QUANTITIES))
+    print(f"\n(files in {tmp})")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,211 @@
+"""``qr evaluate``: score vehicle models by multi-step open-loop rollout (../shared/spec/evaluate.md).
+
+Each flight is split like ``qr diagnose`` splits it (airborne, gap-free segments), filtered
+(``evaluate.filter``), and every sample of each segment (less ``trim_s`` at both ends) starts a
+window (:mod:`qr.rollout`).  Writes ``OUTDIR/evaluation.json``, ``report.md`` and
+``figures/rollout_mae.png``, all at once, after checking where they go.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pandas as pd
+
+from . import rollout
+from .allowed import check_fields, setting
+from .errors import QrInputError
+
+DEFAULTS_FILE = "conf/evaluate/default.yaml"
+OUTPUTS = ("evaluation.json", "report.md", "figures/")
+REFERENCES = ("hold", "rate_frozen")
+# the public nanodrone-sysid-benchmark at h = 50 on its own held-out Crazyflie flights (its table)
+PUBLISHED_H50 = {"physics, no drag, rate frozen": {"p": 0.127, "v": 0.578, "R": 0.254, "w": 0.884},
+                 "physics + MLP residual": {"p": 0.112, "v": 0.556, "R": 0.231, "w": 0.598}}
+UNITS = {"p": "m", "v": "m/s", "R": "rad", "w": "rad/s"}
+
+
+@dataclass
+class EvaluateConfig:
+    KEY: ClassVar[str] = "evaluate"
+    horizon: int = setting(50, "integer", ge=1, le=100_000)
+    max_input_gap: int = setting(2, "integer", ge=0)
+    trim_s: float = setting(0.5, ge=0)
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "EvaluateConfig":
+        d = {k: v for k, v in dict(d or {}).items() if k != "filter"}
+        names = {"horizon", "max_input_gap", "trim_s"}
+        extra = sorted(k for k in d if k not in names)
+        if extra:
+            raise QrInputError(f"evaluate.{extra[0]}", "unknown setting",
+                               f"use one of filter, {', '.join(sorted(names))} ({DEFAULTS_FILE})")
+        return cls(**d)
+
+
+def _compose(overrides):
+    from .config import compose
+
+    overrides = list(overrides)
+    try:
+        cfg = compose(overrides)
+        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
+            cfg = compose(overrides + [f"filter={cfg.evaluate.filter}"])
+    except Exception as e:  # Hydra's errors are long; the first line says what is wrong
+        raise QrInputError("overrides", str(e).strip().splitlines()[0],
+                           "use KEY=VALUE for keys in conf/ (e.g. evaluate.horizon=100, filter=auto)") from None
+    return cfg
+
+
+def model_names(vehicles: list[str]) -> list[str]:
+    """Each vehicle file's name as the models' key (its path where two names clash)."""
+    names = [Path(v).name for v in vehicles]
+    out = [str(v) if names.count(n) > 1 else n for v, n in zip(vehicles, names)]
+    for ref in REFERENCES:
+        if ref in out:
+            raise QrInputError(ref, f"a vehicle file named '{ref}' clashes with the reference model of that name",
+                               "rename the file")
+    if len(set(out)) < len(out):
+        dup = next(v for v in out if out.count(v) > 1)
+        raise QrInputError(dup, "the same vehicle file is given twice", "give each --vehicle once")
+    return out
+
+
+def models_of(vehicles: list, names: list[str]) -> dict:
+    """The models :func:`qr.rollout.score` runs: the references (on the first vehicle) and each vehicle."""
+    models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicles[0])}
+    for name, v in zip(names, vehicles):
+        models[name] = (v, list(v.effects))
+    return models
+
+
+def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:
+    """A segment's estimate, its measured rows on the same stamps, and the starts to score (trimmed)."""
+    t = states["t"].to_numpy(float)
+    meas = rows.set_index("t").reindex(t, method="nearest", tolerance=1e-6).reset_index()
+    keep = (t >= t[0] + trim_s) & (t <= t[-1] - trim_s)
+    return states, meas, keep
+
+
+def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
+                   figures: bool = True) -> dict:
+    """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work)."""
+    from .outputs import check_out_dir
+
+    out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
+    from .atomic import atomic_dir, write_json, write_text
+    from .config import to_dict
+    from .estimation import estimate
+    from .estimation.settings import resolve as resolve_filter
+    from .flight import read_flight
+    from .segments import flight_segments
+    from .vehicle import load_vehicle
+
+    say = log or (lambda msg: print(f"qr evaluate: {msg}", file=sys.stderr))
+    cfg = _compose(overrides)
+    ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
+    filter_cfg = to_dict(cfg.filter)
+    resolve_filter(filter_cfg)
+    names = model_names([str(v) for v in vehicles])
+    vehs = [load_vehicle(v) for v in vehicles]
+    models = models_of(vehs, names)
+    measured = [read_flight(f) for f in flights]
+    per_flight, steps = {}, []
+    for f, m in zip(flights, measured):
+        fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
+        parts = []
+        for seg in fs.used:
+            say(f"filtering {Path(f).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples)")
+            st, _ = estimate(seg.rows, vehs[0], filter_cfg)
+            st, meas, keep = pieces(st, seg.rows, ecfg.trim_s)
+            steps.append(np.diff(st["t"].to_numpy(float)))
+            say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
+            parts.append(rollout.score(st, meas, ecfg.horizon, ecfg.max_input_gap, models, keep))
+        if not parts:
+            raise QrInputError(f, "no airborne, gap-free segment is long enough to evaluate",
+                               "give a longer flight, or a smaller evaluate.trim_s")
+        per_flight[str(f)] = rollout.pool(parts)
+    pooled = rollout.pool(list(per_flight.values()))
+    dt = np.concatenate(steps)
+    doc = {
+        "schema": "qr.evaluation/1",
+        "flights": [str(f) for f in flights],
+        "vehicles": [str(v) for v in vehicles],
+        "dt": float(np.median(dt)),
+        "dt_range": [float(dt.min()), float(dt.max())],
+        "horizon": ecfg.horizon,
+        "config": {"evaluate": {**to_dict(cfg.evaluate)}, "filter": filter_cfg},
+        "models": {k: rollout.summary(*v) for k, v in pooled.items()},
+        "per_flight": {f: {"models": {k: rollout.summary(*v) for k, v in p.items()}} for f, p in per_flight.items()},
+    }
+    with atomic_dir(out, force=force, command="qr evaluate") as tmp:
+        figs = {}
+        if figures:
+            (tmp / "figures").mkdir()
+            figs = {"MAE against the step h, per model (pooled over all windows)":
+                    mae_figure(doc["models"], tmp / "figures" / "rollout_mae.png")}
+        write_text(tmp / "report.md", report(doc, figs))
+        write_json(tmp / "evaluation.json", doc)
+    say(f"wrote {out}/evaluation.json")
+    return doc
+
+
+def table(models: dict, H: int) -> list[str]:
+    """Markdown rows: each model's MAE at h = 1, 10, H and SimErr, per quantity."""
+    hs = [h for h in (1, 10, H) if h <= H]
+    hs = sorted(set(hs))
+    head = ["model"] + [f"{q}@{h}" for q in rollout.QUANTITIES for h in hs] + [f"SimErr {q}" for q in rollout.QUANTITIES]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" + "---:|" * (len(head) - 1)]
+    fmt = lambda x: "–" if x is None else f"{x:.4g}"  # noqa: E731
+    for name, block in models.items():
+        cells = [fmt(rollout.at(block, h, q)) for q in rollout.QUANTITIES for h in hs]
+        cells += [fmt(block[q]["simerr"]) for q in rollout.QUANTITIES]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def report(doc: dict, figs: dict) -> str:
+    H = doc["horizon"]
+    lo, hi = doc["dt_range"]
+    lines = [f"# Rollout evaluation ({len(doc['flights'])} flight{'s' if len(doc['flights']) > 1 else ''})", "",
+             f"Open-loop rollout over H = {H} steps (dt {doc['dt'] * 1e3:.2f} ms, the log's own steps: "
+             f"{lo * 1e3:.2f}-{hi * 1e3:.2f} ms), from every sample of the filtered estimate; truth: the measured "
+             "position and attitude, the estimated velocity and body rate. Mean absolute error per step h: "
+             "p (m), v (m/s), R (rad, rotation angle of q⁻¹ ⊗ q̂), w (rad/s); SimErr = the sum over h = 1..H.",
+             "", "References: `hold` (the state held), `rate_frozen` (nominal thrust along body z, no drag, body rate "
+             "held at its start value: the public nanodrone-sysid-benchmark's physics baseline).", "",
+             *table(doc["models"], H), ""]
+    for title, path in figs.items():
+        lines += [f"![{title}](figures/{path})", ""]
+    lines += ["For comparison, the benchmark's published h = 50 figures on its own held-out Crazyflie flights "
+              "(other flights, so only the orders of magnitude compare):", ""]
+    lines += [f"- {k}: " + ", ".join(f"{q} {v} {UNITS[q]}" for q, v in d.items()) for k, d in PUBLISHED_H50.items()]
+    if len(doc["per_flight"]) > 1:
+        lines += ["", "## Per flight", ""]
+        for f, p in doc["per_flight"].items():
+            lines += [f"### {f}", "", *table(p["models"], H), ""]
+    return "\n".join(lines) + "\n"
+
+
+def mae_figure(models: dict, path: Path) -> str:
+    from .report import figures
+
+    fig, axs = figures.subplots(1, 4, figsize=(13, 3.4))
+    for k, q in enumerate(rollout.QUANTITIES):
+        for j, (name, block) in enumerate(models.items()):
+            m = np.array([np.nan if x is None else x for x in block[q]["mae"]])
+            axs[k].plot(np.arange(1, len(m) + 1), m, label=name,
+                        color={"hold": "0.6", "rate_frozen": "0.2"}.get(name, f"C{j}"),
+                        ls="--" if name in REFERENCES else "-")
+        axs[k].set_xlabel("h (steps)")
+        axs[k].set_ylabel(f"MAE {q} ({UNITS[q]})")
+    axs[0].legend(fontsize=7)
+    figures.save(fig, path)
+    return path.name

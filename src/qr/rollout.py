@@ -1,0 +1,197 @@
+"""Multi-step open-loop rollout: the field's yardstick (../shared/spec/evaluate.md).
+
+From the estimated state at every start sample ``i`` (position and velocity of the
+tracked point in the world frame, attitude, body rate), a model driven by the
+measured rotor speeds of samples ``i … i+H−1`` (zero-order hold, one RK4 step per
+sample over the log's own step, quaternion renormalised) predicts samples ``i+1 … i+H``.  For each ``h``
+the errors against the truth (measured position and attitude, estimated velocity
+and rate) are summed over windows; a window adds to ``h`` only where the truth at
+``i+h`` is present.  Sums and counts are returned, so flights pool by adding.
+
+Models: a vehicle with its effects, integrated by the TRUE plant's rigid-body
+kernel (``qr.sim.plant``: one meaning per effect everywhere), and two references on
+the same windows: ``hold`` (the state held) and ``rate_frozen`` (the nominal rotor
+thrust along body z, no drag, the body rate held at ω_i: the public
+nanodrone-sysid-benchmark's physics baseline).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+import pandas as pd
+
+from .sim.plant import N_P, P_DELAY, P_MARKER, cross, quat_to_R, rigid_body_deriv, true_params
+from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
+
+QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
+MODEL, HOLD, RATE_FROZEN = 0, 1, 2
+
+
+@nb.njit(cache=True)
+def _step(x, u, P, frozen, dt, zero):
+    """One RK4 step of p, v, q, ω; ``frozen``: ω held (no angular acceleration)."""
+    k = np.empty((4, 13))
+    xs = x.copy()
+    for s in range(4):
+        if s == 1 or s == 2:
+            xs = x + 0.5 * dt * k[s - 1]
+        elif s == 3:
+            xs = x + dt * k[2]
+        d = np.empty(13)
+        rigid_body_deriv(xs, u, P, zero, zero, d)
+        if frozen:
+            d[10:13] = 0.0
+        k[s] = d
+    xn = x + dt / 6.0 * (k[0] + 2.0 * k[1] + 2.0 * k[2] + k[3])
+    n = math.sqrt(xn[6] ** 2 + xn[7] ** 2 + xn[8] ** 2 + xn[9] ** 2)
+    xn[6:10] /= n
+    return xn
+
+
+@nb.njit(cache=True)
+def _angle(qa, qb):
+    """Rotation angle of qa⁻¹ ⊗ qb (rad, in [0, π])."""
+    d = abs(qa[0] * qb[0] + qa[1] * qb[1] + qa[2] * qb[2] + qa[3] * qb[3])
+    return 2.0 * math.acos(min(d, 1.0))
+
+
+@nb.njit(cache=True)
+def _rollout(t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
+    """Accumulate error sums (H, 4) and counts (H, 4) over every allowed start."""
+    n = X0.shape[0]
+    r = P[P_MARKER:P_MARKER + 3].copy()
+    zero = np.zeros(3)
+    for i in range(n - 1):
+        if not start_ok[i]:
+            continue
+        x = X0[i].copy()
+        R = quat_to_R(x[6:10])
+        x[0:3] = x[0:3] - R @ r  # the tracked point's state → the CG's
+        x[3:6] = x[3:6] - R @ cross(x[10:13], r)
+        moving = mode != HOLD
+        for h in range(1, H + 1):
+            j = i + h
+            if j >= n:
+                break
+            if moving:
+                xn = _step(x, U[j - 1], P, mode == RATE_FROZEN, t[j] - t[j - 1], zero)
+                if np.all(np.isfinite(xn)) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
+                    x = xn
+                else:  # diverged: the last sane state stands for the rest (its errors still count)
+                    moving = False
+            R = quat_to_R(x[6:10])
+            p = x[0:3] + R @ r
+            v = x[3:6] + R @ cross(x[10:13], r)
+            if np.isfinite(tp[j, 0]):
+                sums[h - 1, 0] += math.sqrt(((p - tp[j]) ** 2).sum())
+                counts[h - 1, 0] += 1
+            if np.isfinite(tv[j, 0]):
+                sums[h - 1, 1] += math.sqrt(((v - tv[j]) ** 2).sum())
+                counts[h - 1, 1] += 1
+            if np.isfinite(tq[j, 0]):
+                sums[h - 1, 2] += _angle(tq[j], x[6:10])
+                counts[h - 1, 2] += 1
+            if np.isfinite(tw[j, 0]):
+                sums[h - 1, 3] += math.sqrt(((x[10:13] - tw[j]) ** 2).sum())
+                counts[h - 1, 3] += 1
+
+
+def _delayed(t: np.ndarray, U: np.ndarray, d: float) -> np.ndarray:
+    if d <= 0:
+        return U
+    return np.column_stack([np.interp(t - d, t, U[:, k]) for k in range(U.shape[1])])
+
+
+def _held(U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Missing rotor speeds held at the last present value; the length of the gap each row sits in."""
+    miss = ~np.isfinite(U).all(axis=1)
+    idx = np.where(~miss, np.arange(len(U)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    held = U[idx]
+    run = np.zeros(len(U), dtype=np.int64)
+    c = 0
+    for i in range(len(U)):
+        c = c + 1 if miss[i] else 0
+        run[i] = c
+    return held, run
+
+
+def starts_allowed(run: np.ndarray, H: int, max_input_gap: int, keep: np.ndarray | None = None) -> np.ndarray:
+    """Starts whose inputs i … i+H−1 have no gap longer than ``max_input_gap`` samples (``keep``: also)."""
+    n = len(run)
+    bad = (run > max_input_gap).astype(np.int64)
+    c = np.concatenate([[0], np.cumsum(bad)])
+    hi = np.minimum(np.arange(n) + H, n)
+    ok = (c[hi] - c[np.arange(n)]) == 0
+    return ok if keep is None else ok & keep
+
+
+def score(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_gap: int,
+          models: dict, keep: np.ndarray | None = None) -> dict:
+    """Sums and counts per model (``{name: (sums (H, 4), counts (H, 4))}``) on one gap-free piece.
+
+    Each RK4 step spans the log's own step between two samples (a jittery log is not resampled: the
+    truth stays as measured, and on a uniform log this is the spec's fixed ``dt``).
+
+    ``states``: the filtered estimate (start states, velocity and rate truth); ``measured``: the log on
+    the same time stamps (position and attitude truth, rotor speeds).  ``models``: name → ``"hold"``,
+    ``("rate_frozen", vehicle)`` or ``(vehicle, effects)``.  ``keep``: the starts to score (all).
+    """
+    t = states["t"].to_numpy(float)
+    X0 = states[POSITION + VELOCITY + QUATERNION + RATE].to_numpy(float)
+    tp = measured[POSITION].to_numpy(float)
+    tq = measured[QUATERNION].to_numpy(float)
+    tq = np.where(np.isfinite(tq).all(axis=1, keepdims=True), tq, np.nan)
+    tp = np.where(np.isfinite(tp).all(axis=1, keepdims=True), tp, np.nan)
+    tv = states[VELOCITY].to_numpy(float)
+    tw = states[RATE].to_numpy(float)
+    U, run = _held(measured[ROTORS].to_numpy(float))
+    ok = starts_allowed(run, horizon, max_input_gap, keep) & np.isfinite(X0).all(axis=1)
+    out = {}
+    for name, spec in models.items():
+        sums, counts = np.zeros((horizon, 4)), np.zeros((horizon, 4), dtype=np.int64)
+        if spec == "hold":
+            mode, P, Ud = HOLD, np.zeros(N_P), U  # nothing is integrated; no marker offset
+        elif spec[0] == "rate_frozen":
+            mode, P, Ud = RATE_FROZEN, true_params(spec[1]), U
+        else:
+            vehicle, effects = spec
+            mode, P = MODEL, true_params(vehicle, effects)
+            Ud = _delayed(t, U, float(P[P_DELAY]))
+        _rollout(t, X0, np.ascontiguousarray(Ud), ok, tp, tq, tv, tw, horizon, P, mode, sums, counts)
+        out[name] = (sums, counts)
+    return out
+
+
+def pool(parts: list[dict]) -> dict:
+    """Add the sums and counts of several pieces, model by model."""
+    out = {}
+    for part in parts:
+        for name, (s, c) in part.items():
+            if name in out:
+                out[name] = (out[name][0] + s, out[name][1] + c)
+            else:
+                out[name] = (s.copy(), c.copy())
+    return out
+
+
+def summary(sums: np.ndarray, counts: np.ndarray) -> dict:
+    """The spec's block per model: for each quantity the MAE per h (null where no window) and SimErr."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mae = sums / counts
+    out = {}
+    for k, q in enumerate(QUANTITIES):
+        m = mae[:, k]
+        out[q] = {"mae": [None if not np.isfinite(x) else float(x) for x in m],
+                  "simerr": float(np.nansum(m)) if np.isfinite(m).any() else None,
+                  "windows": int(counts[0, k])}
+    return out
+
+
+def at(block: dict, h: int, q: str):
+    """MAE of quantity ``q`` at step ``h`` (1-based) from a :func:`summary` block (None if absent)."""
+    m = block[q]["mae"]
+    return m[h - 1] if 0 < h <= len(m) else None
