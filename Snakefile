@@ -7,6 +7,7 @@ include: "workflow/rules/ingest.smk"
 include: "workflow/rules/filter.smk"
 include: "workflow/rules/learn.smk"
 include: "workflow/rules/diagnose.smk"
+include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/simulate.smk"
 
 
@@ -21,3 +22,4 @@ rule all:
         rules.learn_tables.output,
         rules.learn_best.output,
         rules.diagnosis_summary.output,
+        rules.evaluation_summary.output,

@@ -129,3 +129,12 @@ def test_the_same_vehicle_twice_is_refused(tmp_path, capsys):
     status, _, err = run_cli(["evaluate", flight, "--vehicle", nominal, "--vehicle", nominal,
                               "--out", tmp_path / "ev"], capsys)
     assert status == 2 and "twice" in err and not (tmp_path / "ev").exists()
+
+
+def test_flights_held_out_by_flight():
+    from qr.evaluate import held_out_by_flight
+
+    fl = [f"f{i}" for i in range(7)]
+    train, test = held_out_by_flight(fl)
+    assert test == ["f2", "f5"] and train == ["f0", "f1", "f3", "f4", "f6"]
+    assert held_out_by_flight(["a", "b"]) == (["a"], ["b"])

@@ -209,3 +209,54 @@ def mae_figure(models: dict, path: Path) -> str:
     axs[0].legend(fontsize=7)
     figures.save(fig, path)
     return path.name
+
+
+def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
+    """(training, held-out) flights: every third flight held out (the last one of fewer than three)."""
+    flights = list(flights)
+    test = flights[2::3] if len(flights) >= 3 else flights[-1:]
+    return [f for f in flights if f not in test], test
+
+
+def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=()) -> dict:
+    """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal and the
+    extended vehicle on the held-out ones (``single_overrides`` too when one flight trains)."""
+    import json
+
+    from .diagnose import run_diagnosis
+
+    if len(flights) < 2:
+        raise QrInputError(flights[0] if flights else None, "one flight cannot be held out by flight",
+                           "give two flights or more")
+    train, test = held_out_by_flight(flights)
+    reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
+    extra = list(single_overrides) if len(train) == 1 else []
+    run_diagnosis(train, vehicle, diag_out, [*overrides, *extra], track=False, figures=False,
+                  reports=[reports[f] for f in train], log=lambda m: None)
+    return run_evaluation(test, [vehicle, str(Path(diag_out) / "extended_vehicle.yaml")], eval_out,
+                          log=lambda m: None)
+
+
+def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
+    """The held-out rollouts of the flight sets side by side: MAE at h = H and the ratio to ``rate_frozen``."""
+    import json
+
+    from .report.tables import write_table
+
+    rows = []
+    for name, d in eval_dirs.items():
+        doc = json.loads((Path(d) / "evaluation.json").read_text())
+        H, models = doc["horizon"], doc["models"]
+        base = models["rate_frozen"]
+        labels = dict(zip(list(models)[2:], ["nominal", "extended"]))
+        for model, block in models.items():
+            row = {"set": name, "held-out flights": len(doc["flights"]), "model": labels.get(model, model)}
+            for q in rollout.QUANTITIES:
+                x, b = rollout.at(block, H, q), rollout.at(base, H, q)
+                row[f"{q}@{H}"] = x
+                row[f"{q} / rate_frozen"] = None if x is None or not b else x / b
+            rows.append(row)
+    df = pd.DataFrame(rows)
+    write_table(df, table, title="Rollout on held-out flights (qr evaluate; ratio < 1: better than the "
+                                 "benchmark's physics baseline)")
+    return df

@@ -1,0 +1,41 @@
+# Evaluate: the rollout yardstick (../shared/spec/evaluate.md) on flights held out by flight: every
+# third flight of a set is held out, the others are diagnosed, and `qr evaluate` scores the nominal
+# and the extended vehicle on the held-out ones beside the references hold and rate_frozen.
+
+
+rule evaluate_held_out:
+    input:
+        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
+        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        vehicle=diagnosis_vehicle,
+    output:
+        diagnosis=directory("results/evaluation/{set}/training_diagnosis"),
+        evaluation=directory("results/evaluation/{set}/held_out"),
+    log:
+        "results/logs/evaluate/{set}.log",
+    benchmark:
+        "results/benchmarks/evaluate/{set}.tsv"
+    params:
+        overrides=lambda wc: diagnosis_overrides(wc.set),
+        single=lambda wc: diagnosis_overrides(wc.set, "each_overrides"),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/evaluate_held_out.py"
+
+
+rule evaluation_summary:
+    input:
+        sets=expand(rules.evaluate_held_out.output.evaluation, set=list(SETS)),
+    output:
+        table="results/tables/rollout_held_out.csv",
+    log:
+        "results/logs/evaluate/summary.log",
+    benchmark:
+        "results/benchmarks/evaluate/summary.tsv"
+    params:
+        names=list(SETS),
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/evaluation_summary.py"

@@ -1,0 +1,8 @@
+"""Snakemake rule `evaluation_summary`: the held-out rollouts of the flight sets in one table."""
+import sys
+
+from qr.evaluate import summary_table
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    summary_table(dict(zip(snakemake.params.names, snakemake.input.sets)), snakemake.output.table)
