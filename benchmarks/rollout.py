@@ -4,7 +4,8 @@
     .venv/bin/python benchmarks/rollout.py --set payload --vehicle results/diagnosis/payload/vehicle.yaml
 
 Every third flight (sorted by name) is held out; `qr diagnose` runs on the others (the workflow's
-overrides for these short flights); `qr evaluate` then scores the nominal and the extended vehicle on
+overrides for these short flights, its filter reports: the same function as rule `evaluate_held_out`,
+so the same numbers as results/tables/rollout_held_out.md); `qr evaluate` then scores the nominal and the extended vehicle on
 the held-out flights beside the references `hold` and `rate_frozen` (the public benchmark's
 physics baseline).  Prints MAE at h = 1, 10, 50 per model and each model's ratio to `rate_frozen`
 at h = 50.  Needs the workflow's ingest (`snakemake --cores 2 ingest_all` or a full run).
@@ -12,6 +13,7 @@ at h = 50.  Needs the workflow's ingest (`snakemake --cores 2 ingest_all` or a f
 
 import argparse
 import glob
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -20,8 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("QR_TRACKING", "off")
 
 from qr import rollout  # noqa: E402
-from qr.diagnose import run_diagnosis  # noqa: E402
-from qr.evaluate import run_evaluation  # noqa: E402
+from qr.evaluate import evaluate_held_out, held_out_by_flight  # noqa: E402
 
 WORKFLOW_OVERRIDES = ["diagnose.block_s=1.0", "diagnose.gap_s=0.5", "diagnose.horizon_s=0.5"]
 
@@ -36,16 +37,13 @@ def main():
     flights = sorted(glob.glob(f"{a.results}/ingest/{a.set}/*.parquet"))
     if not flights:
         raise SystemExit(f"no flights in {a.results}/ingest/{a.set}: run the workflow's ingest first")
-    test = flights[2::3]
-    train = [f for f in flights if f not in test]
+    train, test = held_out_by_flight(flights)
+    nis = [f.replace("/ingest/", "/filter/").replace(".parquet", ".nis.json") for f in flights]
     tmp = Path(tempfile.mkdtemp(prefix="qr-rollout-"))
-    quiet = lambda m: None  # noqa: E731
     print(f"{a.set}: diagnosing {len(train)} training flights, evaluating {len(test)} held-out flights")
-    doc = run_diagnosis(train, a.vehicle, tmp / "diag", WORKFLOW_OVERRIDES + a.extra, track=False, log=quiet,
-                        figures=False)
+    ev = evaluate_held_out(flights, nis, a.vehicle, tmp / "diag", tmp / "eval", WORKFLOW_OVERRIDES + a.extra)
+    doc = json.loads((tmp / "diag" / "diagnosis.json").read_text())
     print("named:", ", ".join(e["name"] for e in doc["effects"]) or "nothing")
-    ext = tmp / "diag" / "extended_vehicle.yaml"
-    ev = run_evaluation(test, [a.vehicle, str(ext)], tmp / "eval", log=quiet, figures=False)
     names = {Path(a.vehicle).name: "nominal", "extended_vehicle.yaml": "extended"}
     models = {names.get(k, k): v for k, v in ev["models"].items()}
     print(f"\nheld-out flights: {len(test)}, dt {ev['dt'] * 1e3:.1f} ms, H = {ev['horizon']}")

@@ -138,3 +138,41 @@ def test_flights_held_out_by_flight():
     train, test = held_out_by_flight(fl)
     assert test == ["f2", "f5"] and train == ["f0", "f1", "f3", "f4", "f6"]
     assert held_out_by_flight(["a", "b"]) == (["a"], ["b"])
+
+
+def test_a_tracked_diagnosis_logs_the_rollout_at_the_horizon(tmp_path, monkeypatch):
+    """The diagnosis's MLflow run carries each model's MAE at h = H (the rollout block of diagnosis.json)."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.diagnose import run_diagnosis
+
+    flight, nominal, _ = _synth(tmp_path)
+    doc = run_diagnosis([flight], nominal, tmp_path / "d", ["evaluate.horizon=20"], track=True, figures=False,
+                        log=lambda m: None)
+    ro = doc["rollout"]
+    assert ro["horizon"] == 20 and set(ro["models"]) == {"hold", "rate_frozen", "nominal", "extended"}
+    # the named drag and flapping make the extended model's attitude rollout better than the nominal one's
+    assert ro["models"]["extended"]["R"]["mae"][-1] < 0.5 * ro["models"]["nominal"]["R"]["mae"][-1]
+    run = tracking._client().search_runs([tracking.experiment_id("diagnose")])[0]
+    assert run.data.metrics["rollout.extended.R_at_20"] == pytest.approx(ro["models"]["extended"]["R"]["mae"][-1])
+    assert "rollout.rate_frozen.w_at_20" in run.data.metrics
+
+
+def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
+    """Residual of a constant label 1 left as a fast ±1 alternation: nothing explained sample by sample
+    (R² = 1 − n/n = 0), everything summed over 2 samples (each pair sums to 0); a slow error (a
+    constant 0.5 left) is a quarter of the variance either way.  Windows never cross a segment edge:
+    two 5-sample segments give 4 + 4 windows, not 9 (with 9, the pair across the edge, +1 and +1,
+    would show)."""
+    from types import SimpleNamespace
+
+    from qr.diagnose.core import summed_r2
+
+    n = 10
+    prep = SimpleNamespace(test=np.ones(n, bool), flight=np.repeat([0, 1], 5))
+    y = np.ones((n, 2))
+    fast = np.tile([1.0, -1.0, 1.0, -1.0, 1.0], 2)  # each segment: + - + - + (the edge: + then +)
+    resid = np.column_stack([fast, np.full(n, 0.5)])
+    r = summed_r2(prep, y, resid, 2)
+    assert r["one_step"] == pytest.approx([0.0, 0.75])
+    assert r["summed"] == pytest.approx([1.0, 0.75])

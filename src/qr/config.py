@@ -46,3 +46,19 @@ def vehicle_path(name_or_path: str) -> Path:
     if p.suffix in (".yaml", ".yml") or p.exists():
         return p
     return Path(CONF_DIR) / "vehicle" / f"{name_or_path}.yaml"
+
+
+def compose_stage(overrides, stage: str, example: str):
+    """The tree for a CLI stage whose config names its filter (``<stage>.filter``, unless ``filter=`` is
+    overridden); Hydra's long errors become one line (``example``: a KEY=VALUE the user can copy)."""
+    from .errors import QrInputError
+
+    overrides = list(overrides)
+    try:
+        cfg = compose(overrides)
+        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
+            cfg = compose(overrides + [f"filter={cfg[stage].filter}"])
+    except Exception as e:  # Hydra's errors are long; the first line says what is wrong
+        raise QrInputError("overrides", str(e).strip().splitlines()[0],
+                           f"use KEY=VALUE for keys in conf/ (e.g. {example}, filter=auto)") from None
+    return cfg

@@ -51,17 +51,9 @@ class EvaluateConfig:
 
 
 def _compose(overrides):
-    from .config import compose
+    from .config import compose_stage
 
-    overrides = list(overrides)
-    try:
-        cfg = compose(overrides)
-        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
-            cfg = compose(overrides + [f"filter={cfg.evaluate.filter}"])
-    except Exception as e:  # Hydra's errors are long; the first line says what is wrong
-        raise QrInputError("overrides", str(e).strip().splitlines()[0],
-                           "use KEY=VALUE for keys in conf/ (e.g. evaluate.horizon=100, filter=auto)") from None
-    return cfg
+    return compose_stage(overrides, "evaluate", "evaluate.horizon=100")
 
 
 def model_names(vehicles: list[str]) -> list[str]:

@@ -18,17 +18,9 @@ from ..errors import QrInputError
 
 
 def _compose(overrides):
-    from ..config import compose
+    from ..config import compose_stage
 
-    overrides = list(overrides)
-    try:
-        cfg = compose(overrides)
-        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
-            cfg = compose(overrides + [f"filter={cfg.diagnose.filter}"])
-    except Exception as e:  # Hydra's errors are long; the first line says what is wrong
-        raise QrInputError("overrides", str(e).strip().splitlines()[0],
-                           "use KEY=VALUE for keys in conf/ (e.g. diagnose.horizon_s=2, filter=auto)") from None
-    return cfg
+    return compose_stage(overrides, "diagnose", "diagnose.horizon_s=2")
 
 
 def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
@@ -105,13 +97,16 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     say("identifying effects")
     res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
     from ..evaluate import EvaluateConfig
-    from .core import rollout_all
+    from .core import rollout_all, summed_r2
     from .remainder import remainder
 
     say("rolling out the nominal and the extended model on the held-out part")
     ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
     res["rollout"] = rollout_all(states, pieces, vehicle, res["effects"], res["prep"], ecfg.horizon,
                                  ecfg.max_input_gap, 0.0)
+    prep = res["prep"]
+    y_test = prep.y[prep.test]
+    res["rollout"]["explained"] = summed_r2(prep, y_test, y_test - res["pred_test"], ecfg.horizon)
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)
@@ -192,8 +187,20 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
                       inputs=inputs) as run:
         run.metrics({**(metrics or {}), "effects_named": len(doc["effects"]),
                      "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
-                     "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"]})
+                     "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"],
+                     **_rollout_metrics(doc.get("rollout") or {})})
         run.tags({"qr.effects": ",".join(e["name"] for e in doc["effects"]) or "none"})
         for p in ("diagnosis.json", "report.md", "extended_vehicle.yaml"):
             if (outdir / p).exists():
                 run.artifact(outdir / p)
+
+
+def _rollout_metrics(ro: dict) -> dict:
+    """MAE at the horizon of each model and quantity (``rollout.extended.R_at_50``), where present."""
+    out = {}
+    for model, block in (ro.get("models") or {}).items():
+        for q, d in block.items():
+            x = d["mae"][-1] if d.get("mae") else None
+            if x is not None:
+                out[f"rollout.{model}.{q}_at_{ro['horizon']}"] = x
+    return out

@@ -469,3 +469,27 @@ def rollout_all(states_list, measured_list, vehicle, effects, prep: Prepared, ho
     pooled = rollout.pool(parts)
     return {"horizon": horizon, "part": "held-out",
             "models": {k: rollout.summary(*v) for k, v in pooled.items()}}
+
+
+def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) -> dict:
+    """Share of the held-out residual the extended model explains, per axis: sample by sample, and summed
+    over windows of ``horizon`` samples (what a rollout integrates: a slow torque error held for the
+    horizon), never across a segment's edge; windows holding a missing label are left out."""
+    test = np.flatnonzero(prep.test)
+    seg = prep.flight[test]
+    out = {"one_step": [], "summed": []}
+    num1, den1 = np.nansum(resid**2, axis=0), np.nansum(y**2, axis=0)
+    out["one_step"] = (1 - num1 / np.where(den1 > 0, den1, np.nan)).tolist()
+    num, den = np.zeros(y.shape[1]), np.zeros(y.shape[1])
+    for s in np.unique(seg):
+        k = seg == s
+        if k.sum() < horizon:
+            continue
+        for arr, acc in ((y[k], den), (resid[k], num)):
+            c = np.vstack([np.zeros((1, arr.shape[1])), np.cumsum(np.nan_to_num(arr), axis=0)])
+            bad = np.concatenate([[0], np.cumsum(~np.isfinite(arr).all(axis=1))])
+            ok = (bad[horizon:] - bad[:-horizon]) == 0
+            acc += (((c[horizon:] - c[:-horizon])[ok]) ** 2).sum(axis=0)
+    out["summed"] = (1 - num / np.where(den > 0, den, np.nan)).tolist()
+    out["horizon"] = int(horizon)
+    return out

@@ -230,6 +230,16 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
                  "`rate_frozen` is the benchmark's physics baseline (nominal thrust, no drag, body rate held).\n")
         L += table(ro["models"], ro["horizon"])
         L.append("")
+        ex = ro.get("explained")
+        if ex:
+            fmt = lambda x: "–" if x is None or x != x else f"{100 * x:.0f} %"  # noqa: E731
+            L.append(f"Share of the held-out residual the named effects explain, sample by sample and summed "
+                     f"over {ex['horizon']} samples (the slow error a rollout integrates):\n")
+            L.append("| | " + " | ".join(AXES) + " |")
+            L.append("|---|" + "---:|" * len(AXES))
+            L.append("| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |")
+            L.append(f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |")
+            L.append("")
     L.append("## Figures\n")
     for title, name in figs.items():
         L.append(f"### {title}\n\n![{title}](figures/{name})\n")
