@@ -107,11 +107,15 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     prep = res["prep"]
     y_test = prep.y[prep.test]
     res["rollout"]["explained"] = summed_r2(prep, y_test, y_test - res["pred_test"], ecfg.horizon)
+    from .accelerometer import accelerometer_check
+
+    res["accelerometer_check"] = accelerometer_check(states, pieces, vehicle, dcfg.trim_s)
 
     say("checking for structure beyond the catalog")
     res["remainder"] = remainder(res, vehicle, dcfg)
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
+    doc["accelerometer_check"] = res["accelerometer_check"]
     doc.update(segments_json(doc["flights"], split))
     doc["vehicle_file"] = coefficient_checks(doc["effects"], vehicle, vehicle_path)
     if doc["vehicle_file"]:

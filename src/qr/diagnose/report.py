@@ -240,6 +240,12 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             L.append("| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |")
             L.append(f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |")
             L.append("")
+    acc = doc.get("accelerometer_check")
+    if acc:
+        from .accelerometer import statement
+
+        L.append("## The force label against the accelerometer\n")
+        L.append(statement(acc) + "\n")
     L.append("## Figures\n")
     for title, name in figs.items():
         L.append(f"### {title}\n\n![{title}](figures/{name})\n")
