@@ -189,7 +189,7 @@ def report(doc: dict, figs: dict) -> str:
 def mae_figure(models: dict, path: Path) -> str:
     from .report import figures
 
-    fig, axs = figures.subplots(1, 4, figsize=(13, 3.4))
+    fig, axs = figures.subplots(1, 4, figsize=(13, 3.4), layout="constrained")
     for k, q in enumerate(rollout.QUANTITIES):
         for j, (name, block) in enumerate(models.items()):
             m = np.array([np.nan if x is None else x for x in block[q]["mae"]])
@@ -197,7 +197,9 @@ def mae_figure(models: dict, path: Path) -> str:
                         color={"hold": "0.6", "rate_frozen": "0.2"}.get(name, f"C{j}"),
                         ls="--" if name in REFERENCES else "-")
         axs[k].set_xlabel("h (steps)")
-        axs[k].set_ylabel(f"MAE {q} ({UNITS[q]})")
+        axs[k].set_ylim(bottom=0)
+        axs[k].set_title(f"{q} ({UNITS[q]})", fontsize=10)
+    axs[0].set_ylabel("mean absolute error")
     axs[0].legend(fontsize=7)
     figures.save(fig, path)
     return path.name
