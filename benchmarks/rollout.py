@@ -24,7 +24,9 @@ os.environ.setdefault("QR_TRACKING", "off")
 from qr import rollout  # noqa: E402
 from qr.evaluate import evaluate_held_out, held_out_by_flight  # noqa: E402
 
-WORKFLOW_OVERRIDES = ["diagnose.block_s=1.0", "diagnose.gap_s=0.5", "diagnose.horizon_s=0.5"]
+# conf/workflow.yaml: the measured diagnoses' overrides, and the held-out rule's learned torque remainder
+WORKFLOW_OVERRIDES = ["diagnose.block_s=1.0", "diagnose.gap_s=0.5", "diagnose.horizon_s=0.5",
+                      "diagnose.torque_remainder_ridge=0.001"]
 
 
 def main():
@@ -44,7 +46,7 @@ def main():
     ev = evaluate_held_out(flights, nis, a.vehicle, tmp / "diag", tmp / "eval", WORKFLOW_OVERRIDES + a.extra)
     doc = json.loads((tmp / "diag" / "diagnosis.json").read_text())
     print("named:", ", ".join(e["name"] for e in doc["effects"]) or "nothing")
-    names = {Path(a.vehicle).name: "nominal", "extended_vehicle.yaml": "extended"}
+    names = {Path(a.vehicle).name: "nominal", "extended_physical.yaml": "extended", "extended_vehicle.yaml": "hybrid"}
     models = {names.get(k, k): v for k, v in ev["models"].items()}
     print(f"\nheld-out flights: {len(test)}, dt {ev['dt'] * 1e3:.1f} ms, H = {ev['horizon']}")
     print(f"{'model':12s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))

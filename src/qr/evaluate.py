@@ -222,13 +222,24 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     if len(flights) < 2:
         raise QrInputError(flights[0] if flights else None, "one flight cannot be held out by flight",
                            "give two flights or more")
+    import tempfile
+
+    from .vehicle import load_vehicle, save_vehicle
+
     train, test = held_out_by_flight(flights)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     extra = list(single_overrides) if len(train) == 1 else []
     run_diagnosis(train, vehicle, diag_out, [*overrides, *extra], track=False, figures=False,
                   reports=[reports[f] for f in train], log=lambda m: None)
-    return run_evaluation(test, [vehicle, str(Path(diag_out) / "extended_vehicle.yaml")], eval_out,
-                          log=lambda m: None)
+    ext = Path(diag_out) / "extended_vehicle.yaml"
+    models = [vehicle, str(ext)]
+    with tempfile.TemporaryDirectory() as tmp:
+        if load_vehicle(ext).raw.get("torque_remainder"):  # a hybrid: its physical part beside it
+            physical = load_vehicle(ext).to_dict()
+            physical.pop("torque_remainder")
+            save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
+            models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
+        return run_evaluation(test, models, eval_out, log=lambda m: None)
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
@@ -242,7 +253,8 @@ def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
         doc = json.loads((Path(d) / "evaluation.json").read_text())
         H, models = doc["horizon"], doc["models"]
         base = models["rate_frozen"]
-        labels = dict(zip(list(models)[2:], ["nominal", "extended"]))
+        names = list(models)[2:]
+        labels = dict(zip(names, ["nominal", "extended"] if len(names) == 2 else ["nominal", "extended", "hybrid"]))
         for model, block in models.items():
             row = {"set": name, "held-out flights": len(doc["flights"]), "model": labels.get(model, model)}
             for q in rollout.QUANTITIES:

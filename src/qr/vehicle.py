@@ -29,7 +29,7 @@ REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_sp
 SPEED_UNITS = ("rpm", "rad_s")
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
-                         "description", "source"} | set(OPTIONAL_DEFAULTS)
+                         "description", "source", "torque_remainder"} | set(OPTIONAL_DEFAULTS)
 
 
 @dataclass
@@ -186,6 +186,10 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         from .effects import validate_effect_list
         # all parameters given, numbers, and within what this vehicle can physically have
         raw["effects"] = validate_effect_list(raw["effects"], path, vehicle)
+    if raw.get("torque_remainder") is not None:
+        from .torque_remainder import validate
+
+        raw["torque_remainder"] = validate(raw["torque_remainder"], path)
     return vehicle
 
 

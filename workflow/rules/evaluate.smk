@@ -16,7 +16,7 @@ rule evaluate_held_out:
     benchmark:
         "results/benchmarks/evaluate/{set}.tsv"
     params:
-        overrides=lambda wc: diagnosis_overrides(wc.set),
+        overrides=lambda wc: diagnosis_overrides(wc.set) + list(config.get("evaluate", {}).get("overrides", [])),
         single=lambda wc: diagnosis_overrides(wc.set, "each_overrides"),
     conda:
         "../envs/qr.yaml"

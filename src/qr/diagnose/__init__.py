@@ -60,6 +60,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..vehicle import load_vehicle, save_vehicle
     from ..segments import flight_segments
     from .coefficients import coefficient_checks
+    from ..torque_remainder import FEATURES
     from .core import DiagnoseConfig, diagnose, extended_effects
     from .report import make_figures, note_nulls, to_json, write_report
 
@@ -100,10 +101,22 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from .core import rollout_all, summed_r2
     from .remainder import remainder
 
+    ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
+    hybrid = None
+    if dcfg.torque_remainder_ridge > 0:
+        from .. import torque_remainder as trm
+        from .core import fit_torque_remainder
+
+        say("fitting the learned torque remainder")
+        rem = res["torque_remainder"] = fit_torque_remainder(res, vehicle, dcfg.torque_remainder_ridge)
+        W = rem["weights"] + (trm.weights(vehicle) if trm.weights(vehicle) is not None else 0.0)
+        hybrid = ext.with_changes(torque_remainder=trm.block(
+            W, f"learned on the training part of {', '.join(Path(f).name for f in flights)} (ridge "
+               f"{dcfg.torque_remainder_ridge:g}): not a physical effect"))
     say("rolling out the nominal and the extended model on the held-out part")
     ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
     res["rollout"] = rollout_all(states, pieces, vehicle, res["effects"], res["prep"], ecfg.horizon,
-                                 ecfg.max_input_gap, 0.0)
+                                 ecfg.max_input_gap, 0.0, hybrid)
     prep = res["prep"]
     y_test = prep.y[prep.test]
     res["rollout"]["explained"] = summed_r2(prep, y_test, y_test - res["pred_test"], ecfg.horizon)
@@ -116,13 +129,18 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
     doc["accelerometer_check"] = res["accelerometer_check"]
+    if "torque_remainder" in res:
+        rem = res["torque_remainder"]
+        doc["torque_remainder"] = {"ridge": rem["ridge"], "features": FEATURES,
+                                   "extended_torque_rmse": rem["extended_torque_rmse"],
+                                   "hybrid_torque_rmse": rem["hybrid_torque_rmse"]}
     doc.update(segments_json(doc["flights"], split))
     doc["vehicle_file"] = coefficient_checks(doc["effects"], vehicle, vehicle_path)
     if doc["vehicle_file"]:
         doc["verdict"] += " " + " ".join(c["statement"][0].upper() + c["statement"][1:] + "."
                                          for c in doc["vehicle_file"])
     strict = note_nulls(doc)  # diagnosis.json: null (and a note) where the report prints nan
-    ext = vehicle.with_changes(effects=vehicle.effects + extended_effects(res["effects"]))
+    ext = hybrid or ext
     with atomic_dir(out, force=force, command="qr diagnose") as tmp:
         figs = make_figures(tmp, res, vehicle) if figures else {}
         write_report(tmp, doc, res, figs)

@@ -20,6 +20,7 @@ from ..identification.normal_equations import (BlockStats, Columns, accumulate, 
                                                 regressor_noise)
 from ..identification.selection import ROWS, select, torque_arbitration
 from ..states import signals
+from ..torque_remainder import torque as remainder_torque
 from . import replay as replay_mod
 from .noise import calibrate, noise_sd
 from .settings import DiagnoseConfig  # noqa: F401  (the settings and their allowed values live in .settings)
@@ -106,6 +107,7 @@ def prepare(states_list: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig) -> Pr
         y = residuals(s, vehicle)
         if vehicle.effects:  # an extended vehicle: diagnose what its effects leave
             y = y - total_term(vehicle.effects, s, vehicle)
+        y[:, 3:6] -= remainder_torque(vehicle, s.v_b, s.omega, s.u)  # and its learned remainder
         sd = noise_sd(st, s.R, vehicle, y)
         cut = cuts[owner[i]]
         train = t < cut - cfg.gap_s / 2
@@ -451,7 +453,7 @@ def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
 
 
 def rollout_all(states_list, measured_list, vehicle, effects, prep: Prepared, horizon: int, max_input_gap: int,
-                trim_s: float) -> dict:
+                trim_s: float, hybrid=None) -> dict:
     """Multi-step rollout (qr.rollout) of the nominal and the extended model and the references, from the
     held-out starts of every state table (a flight or a gap-free segment of one): the spec's block."""
     from .. import rollout
@@ -459,6 +461,8 @@ def rollout_all(states_list, measured_list, vehicle, effects, prep: Prepared, ho
 
     models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicle), "nominal": (vehicle, list(vehicle.effects)),
               "extended": (vehicle, list(vehicle.effects) + extended_effects(effects))}
+    if hybrid is not None:  # the extended vehicle with its learned torque remainder
+        models["hybrid"] = (hybrid, list(hybrid.effects))
     owner = flight_of(states_list)
     parts = []
     for i, (st, meas) in enumerate(zip(states_list, measured_list)):
@@ -493,3 +497,22 @@ def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) ->
     out["summed"] = (1 - num / np.where(den > 0, den, np.nan)).tolist()
     out["horizon"] = int(horizon)
     return out
+
+
+def fit_torque_remainder(res: dict, vehicle, ridge: float) -> dict:
+    """The learned torque remainder (qr.torque_remainder) on the training part, cross-fitted (features from
+    one half-sample filter, labels from the other), and its held-out torque RMSE beside the extended one."""
+    from .. import torque_remainder as trm
+
+    fp = res["fitprep"]
+    named, theta, fo = res["named"], res["theta"], res.get("force_only", ())
+    tr = np.flatnonzero(fp.train)
+    r_tr = fp.y[tr] - extended_prediction(fp, vehicle, named, theta, tr, fo)
+    s_tr = fp.s.take(tr)
+    W = trm.fit(trm.features(s_tr.v_b, s_tr.omega, s_tr.u, vehicle.hover_speed), r_tr[:, 3:6], ridge)
+    te = np.flatnonzero(fp.test)  # cross-fitted too: a label's own rotor noise is not in its features
+    s_te = fp.s.take(te)
+    r_te = fp.y[te] - extended_prediction(fp, vehicle, named, theta, te, fo)
+    hybrid = r_te[:, 3:6] - trm.features(s_te.v_b, s_te.omega, s_te.u, vehicle.hover_speed) @ W.T
+    return {"weights": W, "ridge": ridge, "extended_torque_rmse": rms(r_te[:, 3:6]).tolist(),
+            "hybrid_torque_rmse": rms(hybrid).tolist()}

@@ -240,6 +240,14 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
             L.append("| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |")
             L.append(f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |")
             L.append("")
+    rem = doc.get("torque_remainder")
+    if rem:
+        L.append("## Learned torque remainder (a hybrid, not a cause)\n")
+        L.append(f"A linear map of {rem['features']} (ridge {rem['ridge']:g}), fitted on the training part to the "
+                 "torque the named effects leave, is written into `extended_vehicle.yaml` (`torque_remainder`) and "
+                 "rolled out as `hybrid` above. Held-out torque RMSE x / y / z (N m): extended "
+                 + " / ".join(f"{x:.2e}" for x in rem["extended_torque_rmse"]) + ", hybrid "
+                 + " / ".join(f"{x:.2e}" for x in rem["hybrid_torque_rmse"]) + ".\n")
     acc = doc.get("accelerometer_check")
     if acc:
         from .accelerometer import statement

@@ -59,6 +59,9 @@ class DiagnoseConfig:
                                           nonempty=True, default_factory=lambda: ["v_b", "u", "q", "omega", "p"])
     remainder_min_gain: float = setting(0.05, ge=0, le=1)
     delay_max_s: float = setting(0.1, gt=0, le=MAX_DELAY_S)
+    # > 0: fit a learned torque remainder (qr.torque_remainder) with this ridge, written into the
+    # extended vehicle and rolled out as the "hybrid"; 0: none
+    torque_remainder_ridge: float = setting(0.0, ge=0)
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

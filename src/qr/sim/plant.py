@@ -25,7 +25,8 @@ from ..frames import G
 P_MASS, P_J, P_B, P_SCALE, P_CQGAIN, P_TAU, P_DELAY = 0, 1, 4, 20, 24, 25, 26
 P_LIN, P_QUAD, P_RDRAG, P_WIND, P_BBIAS, P_GE, P_GZ = 27, 30, 33, 34, 37, 40, 41
 P_CG, P_TBIAS, P_FLAP, P_MARKER = 42, 44, 47, 48
-N_P = 51
+P_REM_ON, P_UHOVER, P_REM = 51, 52, 53  # a learned torque remainder (qr.torque_remainder): flag, u_hover, W (3 x 11)
+N_P = 53 + 33
 N_X = 17
 MIN_GROUND_HEIGHT = 0.02  # m; keeps k T / p_z² finite if a crash is simulated
 
@@ -40,6 +41,11 @@ def true_params(vehicle, effects: list[dict] | None = None) -> np.ndarray:
     P[P_CQGAIN] = 1.0
     P[P_TAU] = vehicle.motor_time_constant
     P[P_GZ] = vehicle.ground_z
+    P[P_UHOVER] = vehicle.hover_speed
+    W = vehicle.raw.get("torque_remainder")
+    if W:
+        P[P_REM_ON] = 1.0
+        P[P_REM:P_REM + 33] = np.asarray(W["weights"], float).ravel()
     for e in effects or []:
         n, k = e["name"], e["parameters"]
         if n == "linear_drag":
@@ -142,6 +148,16 @@ def plant_accels(x, u_eff, P, f_ext, tau_ext):
     tau[0] += -P[P_CG + 1] * T + P[P_TBIAS + 0] + P[P_FLAP] * v_b[1] + tau_ext[0]
     tau[1] += P[P_CG + 0] * T + P[P_TBIAS + 1] - P[P_FLAP] * v_b[0] + tau_ext[1]
     tau[2] += P[P_TBIAS + 2] + tau_ext[2]
+    if P[P_REM_ON] != 0.0:
+        f = np.empty(11)
+        f[0:3] = v_b
+        f[3:6] = w
+        for i in range(4):
+            f[6 + i] = (u_eff[i] / P[P_UHOVER]) ** 2 - 1.0
+        f[10] = 1.0
+        for k in range(3):
+            for j in range(11):
+                tau[k] += P[P_REM + 11 * k + j] * f[j]
     Jw = J * w
     tau += cross(Jw, w)
     alpha = tau / J

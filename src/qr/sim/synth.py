@@ -179,13 +179,18 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
 
     check_out_dir(outdir, inputs=inputs, force=force, expected=OUTPUTS)
     effects = validate_effect_list(vehicle.effects) + validate_effect_list(effects)
-    vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
+    true_vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
+    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder: both are the truth
+    nominal = true_vehicle.to_dict()
+    remainder = nominal.pop("torque_remainder", None)
     with atomic_dir(outdir, force=force, command="qr synth") as tmp:
-        flight, truth = synthesize(vehicle, effects, cfg)
+        flight, truth = synthesize(true_vehicle, effects, cfg)
+        vehicle = true_vehicle if remainder is None else load_nominal(nominal)
         meta = {
             "schema": "qr.synth/1",
             "vehicle": vehicle.name,
             "effects": effects,
+            **({"torque_remainder": remainder} if remainder is not None else {}),
             "seed": cfg.seed,
             "duration": cfg.duration,
             "rate": cfg.rate,
@@ -200,3 +205,9 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
         write_json(tmp / "truth.json", meta)
         truth.to_parquet(tmp / "truth.parquet", index=False)
     return meta
+
+
+def load_nominal(raw: dict):
+    from ..vehicle import vehicle_from_dict
+
+    return vehicle_from_dict(raw)
