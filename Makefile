@@ -5,7 +5,7 @@ STAMP  := $(VENV)/.installed-from-lock
 
 .PHONY: install reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
 
-# MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see notes/README-operations.md)
+# MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see docs/workflow.md)
 MLFLOW_HOST  ?= 127.0.0.1
 MLFLOW_PORT  ?= 5000
 MLFLOW_STORE ?= sqlite:///results/mlflow.db

@@ -137,3 +137,14 @@ def check_fields(obj, key: Callable[[str], str], source: str = "") -> None:
         if allowed is not None:
             default = f.default if f.default_factory is MISSING else f.default_factory()
             setattr(obj, f.name, allowed.check(key(f.name), getattr(obj, f.name), default, source))
+
+
+def check_known(key: str, given, cls, source: str = "") -> None:
+    """Refuse a key of ``given`` that is not a field of the settings dataclass ``cls`` (``key.name``)."""
+    from dataclasses import fields as _fields
+
+    names = [f.name for f in _fields(cls)]
+    extra = sorted(str(k) for k in given if k not in names)
+    if extra:
+        raise QrInputError(f"{key}.{extra[0]}", "unknown setting",
+                           f"use one of {', '.join(names)}{f' ({source})' if source else ''}")

@@ -35,7 +35,7 @@ stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a swe
   python -m qr.simulate  closed-loop tracking study and stability analysis (thesis Chapter 5)
       python -m qr.simulate sim.task=stability
 
-the whole workflow (Snakefile; notes/README-operations.md):
+the whole workflow (Snakefile; docs/workflow.md):
   snakemake --cores 2                                          every stage, resumable after a kill
   snakemake --cores 2 --configfile conf/workflow_ci.yaml       the reduced run (tests, CI)
   snakemake --profile profiles/slurm                           on SLURM (profiles/local-cluster: local test)
@@ -214,23 +214,25 @@ def _cmd_summary(a):
     write_text(Path(a.out).with_suffix(".md"), table.to_markdown(index=False, floatfmt=".4g") + "\n")
 
 
+def _flights_and_overrides(a, command: str) -> tuple[list[str], list[str]]:
+    """The positional arguments of ``qr diagnose`` / ``qr evaluate``: flights, then KEY=VALUE overrides."""
+    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
+    if not flights:
+        raise QrInputError(None, "no flight given", f"qr {command} FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    return flights, [f for f in a.flights if f not in flights]
+
+
 def _cmd_diagnose(a):
     from .diagnose import run_diagnosis
 
-    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
-    overrides = [f for f in a.flights if f not in flights]
-    if not flights:
-        raise QrInputError(None, "no flight given", "qr diagnose FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    flights, overrides = _flights_and_overrides(a, "diagnose")
     run_diagnosis(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
 def _cmd_evaluate(a):
     from .evaluate import run_evaluation
 
-    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
-    overrides = [f for f in a.flights if f not in flights]
-    if not flights:
-        raise QrInputError(None, "no flight given", "qr evaluate FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    flights, overrides = _flights_and_overrides(a, "evaluate")
     run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
 
 

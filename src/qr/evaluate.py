@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from . import rollout
-from .allowed import check_fields, setting
+from .allowed import check_fields, check_known, setting
 from .errors import QrInputError
 
 DEFAULTS_FILE = "conf/evaluate/default.yaml"
@@ -41,12 +41,8 @@ class EvaluateConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "EvaluateConfig":
-        d = {k: v for k, v in dict(d or {}).items() if k != "filter"}
-        names = {"horizon", "max_input_gap", "trim_s"}
-        extra = sorted(k for k in d if k not in names)
-        if extra:
-            raise QrInputError(f"evaluate.{extra[0]}", "unknown setting",
-                               f"use one of filter, {', '.join(sorted(names))} ({DEFAULTS_FILE})")
+        d = {k: v for k, v in dict(d or {}).items() if k != "filter"}  # (filter: read by _compose)
+        check_known(cls.KEY, d, cls, DEFAULTS_FILE)
         return cls(**d)
 
 
@@ -81,19 +77,25 @@ def models_of(vehicles: list, names: list[str]) -> dict:
 def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:
     """A segment's estimate, its measured rows on the same stamps, and the starts to score (trimmed)."""
     t = states["t"].to_numpy(float)
-    meas = rows.set_index("t").reindex(t, method="nearest", tolerance=1e-6).reset_index()
+    from .flight import on_stamps
+
+    meas = on_stamps(rows, t)
     keep = (t >= t[0] + trim_s) & (t <= t[-1] - trim_s)
     return states, meas, keep
 
 
 def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
-                   figures: bool = True) -> dict:
-    """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work)."""
+                   figures: bool = True, reports: list | None = None) -> dict:
+    """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work).
+
+    ``reports``: the filter stage's report of each flight (its tuned noise values are reused instead
+    of tuning again, as ``qr diagnose`` does)."""
     from .outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
     from .atomic import atomic_dir, write_json, write_text
     from .config import to_dict
+    from .diagnose.crossfit import fixed_settings
     from .estimation import estimate
     from .estimation.settings import resolve as resolve_filter
     from .flight import read_flight
@@ -110,12 +112,13 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     models = models_of(vehs, names)
     measured = [read_flight(f) for f in flights]
     per_flight, steps = {}, []
-    for f, m in zip(flights, measured):
+    for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
+        settings = fixed_settings(filter_cfg, reports[i]) if reports else filter_cfg
         parts = []
         for seg in fs.used:
             say(f"filtering {Path(f).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples)")
-            st, _ = estimate(seg.rows, vehs[0], filter_cfg)
+            st, _ = estimate(seg.rows, vehs[0], settings)
             st, meas, keep = pieces(st, seg.rows, ecfg.trim_s)
             steps.append(np.diff(st["t"].to_numpy(float)))
             say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
@@ -239,7 +242,7 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
             physical.pop("torque_remainder")
             save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
             models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
-        return run_evaluation(test, models, eval_out, log=lambda m: None)
+        return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test])
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:

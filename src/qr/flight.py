@@ -362,3 +362,8 @@ def dropouts(df: pd.DataFrame) -> dict:
         "missed_frames": gaps,
         "median_dt": med,
     }
+
+
+def on_stamps(rows: pd.DataFrame, t) -> pd.DataFrame:
+    """A flight's rows at a state table's stamps (the same samples, matched within 1 µs; others blank)."""
+    return rows.set_index("t").reindex(np.asarray(t, float), method="nearest", tolerance=1e-6).reset_index()

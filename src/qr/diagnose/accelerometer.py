@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from ..dynamics import residuals
+from ..flight import on_stamps
 from ..states import ROTORS, signals
 
 ACCEL = ["ax", "ay", "az"]  # flight-log columns (specific force, body, m/s²), not the state table's
@@ -22,7 +23,7 @@ ACCEL = ["ax", "ay", "az"]  # flight-log columns (specific force, body, m/s²), 
 
 def labels(st: pd.DataFrame, meas: pd.DataFrame, vehicle) -> tuple[np.ndarray, np.ndarray]:
     """(motion-capture force label, accelerometer force label), (N, 3) each, on the state table's rows."""
-    meas = meas.set_index("t").reindex(st["t"].to_numpy(), method="nearest", tolerance=1e-6)
+    meas = on_stamps(meas, st["t"])
     f_m = residuals(signals(st), vehicle)[:, :3]
     T, _ = vehicle.rotors.thrust_torque(meas[ROTORS].ffill().bfill().to_numpy())
     f_i = vehicle.mass * meas[ACCEL].to_numpy(float)

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..dynamics import residuals
+from ..flight import on_stamps
 from ..effects import CATALOG, Signals, plausible_bounds, total_term
 from ..identification import delay as delay_mod
 from ..identification.bootstrap import bootstrap
@@ -435,7 +436,7 @@ def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
     out = {"nominal": [], "extended": []}
     owner = flight_of(states_list)
     for i, (st, meas) in enumerate(zip(states_list, measured_list)):
-        meas = meas.set_index("t").reindex(st["t"].to_numpy(), method="nearest", tolerance=1e-6).reset_index()
+        meas = on_stamps(meas, st["t"])
         for key, eff in (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects))):
             err = replay_mod.replay(st, meas, vehicle, eff, cfg.horizon_s)
             err["test"] = err["t"] >= prep.windows[owner[i]]["test"][0]

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
-from ..allowed import check_fields, setting, show
+from ..allowed import check_fields, check_known, setting, show
 from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
 from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
@@ -34,14 +34,6 @@ def _remainder_groups() -> list[str]:
     from ..datasets import GROUPS
 
     return [g for g in GROUPS if g not in _leaking_groups()]
-
-
-def _unknown(key: str, given, cls) -> None:
-    names = {f.name for f in fields(cls)}
-    extra = sorted(str(k) for k in given if k not in names)
-    if extra:
-        raise QrInputError(f"{key}.{extra[0]}", "unknown setting",
-                           f"use one of {', '.join(f.name for f in fields(cls))} ({DEFAULTS_FILE})")
 
 
 @dataclass
@@ -80,7 +72,7 @@ class DiagnoseConfig:
         if not isinstance(sel, dict):
             raise QrInputError("diagnose.selection", f"{show(sel)} is not a mapping of settings",
                                "override its keys one by one, e.g. diagnose.selection.folds=5")
-        _unknown(SelectionConfig.KEY, sel, SelectionConfig)
+        check_known(SelectionConfig.KEY, sel, SelectionConfig, DEFAULTS_FILE)
         names = {f.name for f in fields(cls)}
         known = {k: v for k, v in d.items() if k in names}  # (filter, track: read elsewhere)
         return cls(selection=SelectionConfig(**sel), **known)

@@ -20,7 +20,7 @@ from ..effects import validate_effect_list
 from ..errors import QrInputError
 from ..flight import POSITION, QUATERNION, ROTORS, write_flight
 from ..frames import quat_multiply
-from ..vehicle import save_vehicle
+from ..vehicle import save_vehicle, vehicle_from_dict
 from .control import Gains, control, controller_params
 from .plant import P_DELAY, P_MARKER, P_TAU, history_buffer, hover_state, plant_accels, rk4_step, tracked_point, true_params
 from .trajectory import RandomTrajectory, TrajectoryConfig, random_trajectory, reference
@@ -185,7 +185,7 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
     remainder = nominal.pop("torque_remainder", None)
     with atomic_dir(outdir, force=force, command="qr synth") as tmp:
         flight, truth = synthesize(true_vehicle, effects, cfg)
-        vehicle = true_vehicle if remainder is None else load_nominal(nominal)
+        vehicle = true_vehicle if remainder is None else vehicle_from_dict(nominal)
         meta = {
             "schema": "qr.synth/1",
             "vehicle": vehicle.name,
@@ -206,8 +206,3 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
         truth.to_parquet(tmp / "truth.parquet", index=False)
     return meta
 
-
-def load_nominal(raw: dict):
-    from ..vehicle import vehicle_from_dict
-
-    return vehicle_from_dict(raw)
