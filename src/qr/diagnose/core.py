@@ -23,6 +23,7 @@ from ..identification.selection import ROWS, select, torque_arbitration
 from ..states import signals
 from ..torque_remainder import torque as remainder_torque
 from . import replay as replay_mod
+from . import slow_torque as slow_mod
 from .noise import calibrate, noise_sd
 from .settings import DiagnoseConfig  # noqa: F401  (the settings and their allowed values live in .settings)
 
@@ -353,6 +354,34 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     dof = np.sqrt(used / (used - boot.shape[1])) if named and used > boot.shape[1] + 1 else 1.0
     se = boot.std(axis=0, ddof=1) * dof if named else np.zeros(0)
 
+    slow = None
+    if cfg.slow_torque_horizon and slow_mod.EFFECT in candidates and slow_mod.EFFECT not in named:
+        step("slow torque balance")
+        resid = fitprep.y - extended_prediction(fitprep, vehicle, named, theta, None, force_only)
+        slow = slow_mod.slow_torque(fitprep, vehicle, resid, named, cfg.slow_torque_horizon, cfg.selection.folds,
+                                    cfg.selection.t_name, cfg.slow_torque_min_gain, cfg.selection.bootstrap, seed)
+    fixed = {}  # effects whose parameters come from outside the one-step fit
+    if slow and slow["named"]:
+        ax = slow["axes"]
+        fixed[slow_mod.EFFECT] = (np.array([a["estimate"] if a["named"] else 0.0 for a in ax]),
+                                  np.array([a["stderr"] if a["named"] else np.nan for a in ax]))
+        old = Columns.of(named)
+        named = sorted(named + [slow_mod.EFFECT], key=list(CATALOG).index)
+        new = Columns.of(named)
+        th, s2 = np.zeros(new.size), np.zeros(new.size)
+        for e in named:
+            th[new.slices[e]], s2[new.slices[e]] = fixed[e] if e in fixed else (theta[old.slices[e]], se[old.slices[e]])
+        theta, se = th, s2
+
+    def refit(effects):
+        """One-step fit of ``effects`` on the training part, the slow-balance parameters kept."""
+        own = [e for e in effects if e not in fixed]
+        th_own = fit(stats, own) if own else np.zeros(0)
+        cols, out = Columns.of(effects), np.zeros(Columns.of(effects).size)
+        for e in effects:
+            out[cols.slices[e]] = fixed[e][0] if e in fixed else th_own[Columns.of(own).slices[e]]
+        return out
+
     test = prep.test
     s_test = prep.design_s.take(np.flatnonzero(test))
     y_test = prep.y[test]
@@ -366,7 +395,7 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     explained = {}
     for e in named:
         rest = [x for x in named if x != e]
-        th_rest = fit(stats, rest) if rest else np.zeros(0)
+        th_rest = refit(rest) if rest else np.zeros(0)
         r_rest = y_test - predict(s_test, vehicle, rest, th_rest, force_only)
         explained[e] = float((np.nanmean(w_test * r_rest**2) - np.nanmean(w_test * ext_resid**2)) / base_loss)
     for e in effects:
@@ -394,6 +423,7 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
         "pred_test": pred_test,
         "force_only": force_only,
         "torque_arbitration": arb,
+        "slow_torque": slow,
     }
     result["anatomy"] = anatomy(stats, s_test, y_test, prep.sd[test], vehicle, candidates, force_only)
     step("replay")
@@ -481,20 +511,12 @@ def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) ->
     over windows of ``horizon`` samples (what a rollout integrates: a slow torque error held for the
     horizon), never across a segment's edge; windows holding a missing label are left out."""
     test = np.flatnonzero(prep.test)
-    seg = prep.flight[test]
     out = {"one_step": [], "summed": []}
     num1, den1 = np.nansum(resid**2, axis=0), np.nansum(y**2, axis=0)
     out["one_step"] = (1 - num1 / np.where(den1 > 0, den1, np.nan)).tolist()
-    num, den = np.zeros(y.shape[1]), np.zeros(y.shape[1])
-    for s in np.unique(seg):
-        k = seg == s
-        if k.sum() < horizon:
-            continue
-        for arr, acc in ((y[k], den), (resid[k], num)):
-            c = np.vstack([np.zeros((1, arr.shape[1])), np.cumsum(np.nan_to_num(arr), axis=0)])
-            bad = np.concatenate([[0], np.cumsum(~np.isfinite(arr).all(axis=1))])
-            ok = (bad[horizon:] - bad[:-horizon]) == 0
-            acc += (((c[horizon:] - c[:-horizon])[ok]) ** 2).sum(axis=0)
+    k = y.shape[1]
+    sums, _ = slow_mod.window_sums(np.hstack([y, resid]), prep.flight[test], horizon)
+    den, num = (sums[:, :k] ** 2).sum(axis=0), (sums[:, k:] ** 2).sum(axis=0)
     out["summed"] = (1 - num / np.where(den > 0, den, np.nan)).tolist()
     out["horizon"] = int(horizon)
     return out

@@ -59,10 +59,18 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
                       "equivalent": [_clean(s) for s in res["selection"].get("equivalent", [])],
                       "rejected": res["selection"].get("rejected", {}),
                       "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in d.items()}
-                                             for k, d in res.get("torque_arbitration", {}).items()}},
+                                             for k, d in res.get("torque_arbitration", {}).items()},
+                      "slow_torque": _slow_json(res.get("slow_torque"))},
         "verdict": verdict(res),
         "config": cfg_dict,
     }
+
+
+def _slow_json(slow: dict | None) -> dict | None:
+    if not slow:
+        return None
+    axes = [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in a.items()} for a in slow["axes"]]
+    return {**slow, "axes": axes}
 
 
 def _clean(step: dict) -> dict:

@@ -54,6 +54,10 @@ class DiagnoseConfig:
     # > 0: fit a learned torque remainder (qr.torque_remainder) with this ridge, written into the
     # extended vehicle and rolled out as the "hybrid"; 0: none
     torque_remainder_ridge: float = setting(0.0, ge=0)
+    # the slow torque balance (qr.diagnose.slow_torque): inertia judged on the residual summed over this
+    # many samples (0: off), named per axis when it explains at least slow_torque_min_gain of that sum
+    slow_torque_horizon: int = setting(50, "integer", ge=0)
+    slow_torque_min_gain: float = setting(0.05, ge=0, le=1)
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

@@ -4,7 +4,8 @@ One entry point, :func:`estimate`: a canonical flight in, the state table
 (:mod:`qr.states`) and a report out.  Three filters (thesis §4.2.1):
 
 - position: linear KF on ``[p, v, a, j]`` (:mod:`.position_kf`);
-- attitude: ESKF on SO(3) with ``[q, ω, α, α̇]`` (:mod:`.attitude_eskf`);
+- attitude: ESKF on SO(3) with ``[q, ω, α, α̇]`` (:mod:`.attitude_eskf`), the log's gyro fused where
+  ``attitude.gyro`` is on (:mod:`.gyro`);
 - rotors: one KF per rotor on ``[u, u̇, ü]`` (:mod:`.motor_kf`);
 
 with an optional RTS smoother (:mod:`.smoother`), likelihood tuning
@@ -20,7 +21,7 @@ import pandas as pd
 from ..errors import QrInputError
 from ..flight import check_not_frozen
 from ..states import COLUMNS
-from . import attitude_eskf, motor_kf, nis, position_kf
+from . import attitude_eskf, gyro, motor_kf, nis, position_kf
 from .settings import DEFAULTS, FILTERS, resolve
 from .tuning import ORDER, corner_hz, tune
 
@@ -92,11 +93,23 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     pf = position_kf.filter_reference if ref else position_kf.filter_fast
     Xp, Vp, inn_p = pf(t, P, s["position"]["q"], s["position"]["r"], disc, smooth, **kw)
     att = (t, Qm, s["attitude"]["q"], s["attitude"]["r"], disc, smooth)
-    if ref:
-        quat, psi, Ps, inn_a, resets = attitude_eskf.filter_reference(*att, reset_deg=s["attitude"]["reset_deg"], **kw)
-        Va, blocks = attitude_eskf.covariance_summary(Ps)
-    else:
-        quat, psi, Va, blocks, inn_a, resets = attitude_eskf.filter_fast(*att, reset_deg=s["attitude"]["reset_deg"])
+
+    def attitude(**g):
+        if ref:
+            quat, psi, Ps, inn, resets = attitude_eskf.filter_reference(*att, reset_deg=s["attitude"]["reset_deg"],
+                                                                         **kw, **g)
+            return (quat, psi, *attitude_eskf.covariance_summary(Ps), inn, resets)
+        return attitude_eskf.filter_fast(*att, reset_deg=s["attitude"]["reset_deg"], **g)
+
+    quat, psi, Va, blocks, inn_a, resets = attitude()
+    G = gyro.samples(flight) if s["attitude"]["gyro"] else None
+    gyro_report = None
+    if G is not None:  # a second pass with the gyro; the first gives its bias
+        b = gyro.bias(G, attitude_eskf.body_rates(quat, psi, blocks)[0])
+        rg = gyro.noise_variance(G)
+        quat, psi, Va, blocks, inn_a, resets = attitude(gyro=G - b, r_gyro=rg)
+        gyro_report = {"fused": True, "bias": [float(x) for x in b], "noise_sd": float(np.sqrt(rg)),
+                       "samples": int(np.all(np.isfinite(G), axis=1).sum())}
     mf = motor_kf.filter_reference if ref else motor_kf.filter_fast
     Xm, Vm, inn_m = mf(t, U, s["motor"]["q"], s["motor"]["r"], disc, smooth, speed_scale=speed_scale, **kw)
 
@@ -142,6 +155,7 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
                      "attitude": int((~np.all(np.isfinite(Qm), axis=1)).sum()),
                      "motor": int((~np.isfinite(U)).sum())},
         "noise": noise, "tuning": tuned or None,
+        "gyro": gyro_report or {"fused": False},
         "attitude_restarts": {"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
         "nis": nis_report, "nis_burn_in_s": float(t[keep][0] - t[0]), "inconsistent": flagged,
         "nis_note": ("tuned: q and r are scaled so each filter's mean NIS equals its dimension; judge "

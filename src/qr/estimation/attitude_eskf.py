@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
-from ..frames import quat_multiply, quat_to_rot, rotation
+from ..frames import quat_multiply, quat_to_rot, rotation, skew
 from . import chain
 from .nis import Innovations
 
@@ -121,11 +121,21 @@ def initial(quat0, r):
     return np.asarray(quat0, dtype=float) / np.linalg.norm(quat0), np.zeros(9), P0
 
 
+def gyro_H(quat, psi) -> np.ndarray:
+    """Gyro measurement matrix: ``ω_b = Rᵀ ω``, ``R = R̂ exp(δθ)`` ⇒ ``H = [[ω̂_b]×, R̂ᵀ, 0, 0]`` (first order)."""
+    R = quat_to_rot(quat)
+    H = np.zeros((3, 12))
+    H[:, 0:3] = skew(R.T @ psi[0:3])
+    H[:, 3:6] = R.T
+    return H
+
+
 def filter_reference(t, quat_meas, q, r, discretisation="thesis", smooth=False, progress=False,
-                     reset_deg=RESET_DEG):
+                     reset_deg=RESET_DEG, gyro=None, r_gyro=None):
     """ESKF (and optional RTS) on filterpy: the error state's covariance lives in a ``KalmanFilter``.
 
-    ``quat_meas`` (N, 4) with NaN rows for dropouts.  Returns quaternions
+    ``quat_meas`` (N, 4) with NaN rows for dropouts; ``gyro`` (N, 3), optional: body rates with the
+    bias removed, variance ``r_gyro`` per axis, fused after the attitude update.  Returns quaternions
     (N, 4), world rates ψ = (ω, α, α̇) (N, 9), covariances (N, 12, 12),
     :class:`Innovations` and the restart flags (N,) (see :data:`RESET_DEG`).
     """
@@ -170,13 +180,19 @@ def filter_reference(t, quat_meas, q, r, discretisation="thesis", smooth=False, 
                 resets[k], lost = True, False
             else:
                 quat, psi = inject(quat, psi, kf.x[:, 0])
+        if gyro is not None and np.all(np.isfinite(gyro[k])) and not resets[k]:
+            Hg = gyro_H(quat, psi)
+            kf.x = np.zeros((12, 1))
+            kf.update((gyro[k] - Hg[:, 3:6] @ psi[0:3]).reshape(3, 1), R=r_gyro * np.eye(3), H=Hg)
+            quat, psi = inject(quat, psi, kf.x[:, 0])
         Q_out[k], PSI[k], Ps[k] = quat, psi, kf.P
     if smooth:
         Q_out, PSI, Ps = rts_eskf(Q_out, PSI, Ps, step, resets)
     return Q_out, PSI, Ps, Innovations(nis, logdet, 3), resets
 
 
-def filter_fast(t, quat_meas, q, r, discretisation="thesis", smooth=False, reset_deg=RESET_DEG):
+def filter_fast(t, quat_meas, q, r, discretisation="thesis", smooth=False, reset_deg=RESET_DEG, gyro=None,
+                r_gyro=None):
     """Compiled equivalent of :func:`filter_reference`.
 
     Returns quaternions, world rates ψ, variances (N, 12), the ω and α
@@ -190,8 +206,11 @@ def filter_fast(t, quat_meas, q, r, discretisation="thesis", smooth=False, reset
     qd = np.broadcast_to(np.asarray(q, dtype=float), (3,)).copy()
     exact = discretisation == "exact"
     reset = -1.0 if reset_deg is None else float(np.radians(reset_deg))
+    zg = np.zeros((len(t), 3)) if gyro is None else np.asarray(gyro, dtype=float)
+    gvalid = np.zeros(len(t), dtype=bool) if gyro is None else np.all(np.isfinite(zg), axis=1)
     QT, PSI, Ps, V, Bl, nis, logdet, resets = fast.eskf_forward(t, quat_meas, valid, qd, float(r), exact, quat0, psi0,
-                                                                P0, smooth, reset)
+                                                                P0, smooth, reset, zg, gvalid,
+                                                                float(r_gyro or 1.0))
     if smooth:
         fast.eskf_smooth(t, QT, PSI, Ps, qd, exact, equilibration(Ps), resets)
         V, Bl = covariance_summary(Ps)

@@ -383,11 +383,44 @@ def _inv3(S, out):
 
 
 @nb.njit(cache=True)
-def eskf_forward(t, zq, valid, qd, r, exact, quat0, psi0, P0, store, reset_angle):
+def gyro_update(quat, psi, P, zg, rg):
+    """A gyro sample ``zg`` (body rate, bias removed) with variance ``rg`` per axis.
+
+    ``ω_b = Rᵀ ω`` with ``R = R̂ exp(δθ)``: ``H = [[ω̂_b]×, R̂ᵀ, 0, 0]`` to first order.
+    Joseph-form update, as filterpy's ``update(z, R, H)``.
+    """
+    R = qrot(quat)
+    wb = np.zeros(3)
+    for a in range(3):
+        wb[a] = R[0, a] * psi[0] + R[1, a] * psi[1] + R[2, a] * psi[2]
+    H = np.zeros((3, 12))
+    H[0, 1], H[0, 2] = -wb[2], wb[1]
+    H[1, 0], H[1, 2] = wb[2], -wb[0]
+    H[2, 0], H[2, 1] = -wb[1], wb[0]
+    for a in range(3):
+        for b in range(3):
+            H[a, 3 + b] = R[b, a]
+    PHt = P @ H.T
+    S = H @ PHt
+    for a in range(3):
+        S[a, a] += rg
+    SI = np.empty((3, 3))
+    _inv3(S, SI)
+    K = PHt @ SI
+    dx = K @ (zg - wb)
+    IKH = np.eye(12) - K @ H
+    Pn = IKH @ P @ IKH.T + rg * (K @ K.T)
+    quat, psi = eskf_inject(quat, psi, dx)
+    return quat, psi, Pn
+
+
+@nb.njit(cache=True)
+def eskf_forward(t, zq, valid, qd, r, exact, quat0, psi0, P0, store, reset_angle, zg, gvalid, rg):
     """The attitude ESKF.  Returns quaternions (N, 4), world rates (N, 9), covariances
     (N or 1, 12, 12), variances (N, 12), the ω and α blocks (N, 2, 3, 3), NIS (N,), log det S (N,)
     and the samples where the track was lost and the filter restarted (innovation angle above
-    ``reset_angle``, or a predicted rotation between samples above it; never if it is <= 0)."""
+    ``reset_angle``, or a predicted rotation between samples above it; never if it is <= 0).
+    ``zg`` (N, 3): gyro samples fused where ``gvalid`` (:func:`gyro_update`)."""
     N = zq.shape[0]
     resets = np.zeros(N, dtype=np.bool_)
     QT = np.empty((N, 4))
@@ -446,6 +479,8 @@ def eskf_forward(t, zq, valid, qd, r, exact, quat0, psi0, P0, store, reset_angle
                     for j in range(12):
                         P[i, j] = (T[i, j] - (T[i, 0] * K[j, 0] + T[i, 1] * K[j, 1] + T[i, 2] * K[j, 2])
                                    + r * (K[i, 0] * K[j, 0] + K[i, 1] * K[j, 1] + K[i, 2] * K[j, 2]))
+        if gvalid[k] and not resets[k]:
+            quat, psi, P = gyro_update(quat, psi, P, zg[k], rg)
         QT[k] = quat
         PSI[k] = psi
         if store:

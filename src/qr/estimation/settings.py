@@ -24,7 +24,7 @@ DEFAULTS = {
     "discretisation": "thesis",
     "position": {"q": position_kf.THESIS_Q, "r": position_kf.THESIS_R},
     "attitude": {"q": attitude_eskf.THESIS_Q.tolist(), "r": attitude_eskf.THESIS_R,
-                 "reset_deg": attitude_eskf.RESET_DEG},
+                 "reset_deg": attitude_eskf.RESET_DEG, "gyro": False},
     "motor": {"q": motor_kf.THESIS_Q, "r": motor_kf.THESIS_R},
     "tune": {"enabled": False, "min_corner_hz": 0.05, "grid": 13, "rounds": 2, "max_samples": 60000},
     "nis": {"confidence": 0.95, "burn_in_s": 1.0},
@@ -71,8 +71,8 @@ def _positive(x, key: str, n: int = 1):
 def resolve(cfg: dict | None) -> dict:
     """Defaults merged with ``cfg`` (a ``filter`` group as a plain dict), checked."""
     s = _merge(DEFAULTS, dict(cfg or {}), "")
-    for key in ("smoother", "tune.enabled"):
-        v = s[key] if "." not in key else s["tune"]["enabled"]
+    for key in ("smoother", "tune.enabled", "attitude.gyro"):
+        v = s[key] if "." not in key else s[key.split(".")[0]][key.split(".")[1]]
         if not isinstance(v, bool):
             raise _bad(f"'{key}' must be true or false, got {v!r}")
     if s["implementation"] not in IMPLEMENTATIONS:
