@@ -61,13 +61,20 @@ def test_an_estimate_outside_the_plausible_range_is_not_named():
     assert not any(o["named"] for o in out) and all("plausible" in o["why_not"] for o in out)
 
 
-def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(tmp_path):
+@pytest.fixture(scope="module")
+def hidden_inertia(tmp_path_factory):
     """Hummingbird, J_xx and J_yy 40 % above the file, J_zz as the file; high mocap noise."""
     from test_diagnose import NOISE_LEVELS
 
-    vehicle, _ = _synth(tmp_path, ["inertia_error:dJxx=0.0028,dJyy=0.0028,dJzz=0"], noise=NOISE_LEVELS["high"],
+    tmp = tmp_path_factory.mktemp("slow")
+    vehicle, _ = _synth(tmp, ["inertia_error:dJxx=0.0028,dJyy=0.0028,dJzz=0"], noise=NOISE_LEVELS["high"],
                         duration=60)
-    doc, res = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "s" / "vehicle.yaml", tmp_path / "d",
+    return tmp, vehicle
+
+
+def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(hidden_inertia):
+    tmp, vehicle = hidden_inertia
+    doc, res = run_diagnosis([tmp / "s" / "flight.csv"], tmp / "s" / "vehicle.yaml", tmp / "d",
                              log=lambda m: None, return_result=True, figures=False)
     fp = res["fitprep"]
     slow = slow_torque(fp, vehicle, fp.y, [], 50, 5, 3.0, 0.05, 200, 0)
@@ -76,8 +83,27 @@ def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(tmp_path):
         assert o["named"] and o["estimate"] == pytest.approx(0.0028, abs=3 * o["stderr"]), o
         assert o["stderr"] < 0.0028 / 5
     assert not yaw["named"] and abs(yaw["estimate"]) < 3 * yaw["stderr"], yaw
-    # the whole diagnosis names it, by either criterion, with dJzz at (or near) the file's value
+    # the whole diagnosis names it (here the one-step selection already does)
     named = {e["name"]: e for e in doc["effects"]}
     assert "inertia_error" in named, doc["selection"]
     p = named["inertia_error"]["parameters"]
     assert p["dJxx"] == pytest.approx(0.0028, rel=0.2) and p["dJyy"] == pytest.approx(0.0028, rel=0.2)
+
+
+def test_named_by_the_slow_balance_alone_the_file_keeps_the_untested_entry(hidden_inertia):
+    """The one-step rule made unreachable (a 99 % loss cut asked): the balance names roll and pitch,
+    Jzz stays the file's (stderr null, and the notes and the report say why)."""
+    tmp, _ = hidden_inertia
+    doc = run_diagnosis([tmp / "s" / "flight.csv"], tmp / "s" / "vehicle.yaml", tmp / "d2",
+                        ["diagnose.selection.min_gain=0.99", "diagnose.selection.strong_gain=0.99"],
+                        log=lambda m: None, figures=False)
+    assert [e["name"] for e in doc["effects"]] == ["inertia_error"], doc["selection"]
+    e = doc["effects"][0]
+    assert e["parameters"]["dJxx"] == pytest.approx(0.0028, rel=0.2)
+    assert e["parameters"]["dJyy"] == pytest.approx(0.0028, rel=0.2)
+    assert e["parameters"]["dJzz"] == 0.0 and e["stderr"]["dJzz"] is None
+    assert any("held at the vehicle file's value" in n for n in doc["notes"])
+    axes = doc["selection"]["slow_torque"]["axes"]
+    assert [a["named"] for a in axes] == [True, True, False]
+    assert "Slow torque balance" in (tmp / "d2" / "report.md").read_text()
+    assert doc["extended"]["torque_rmse"][0] < 0.5 * doc["nominal"]["torque_rmse"][0]

@@ -73,6 +73,21 @@ def _slow_json(slow: dict | None) -> dict | None:
     return {**slow, "axes": axes}
 
 
+def _slow_torque_lines(slow: dict | None) -> list[str]:
+    if not slow or not slow.get("axes"):
+        return []
+    parts = []
+    for a in slow["axes"]:
+        if "estimate" not in a:
+            parts.append(f"{a['parameter']}: {a['why_not']}")
+            continue
+        head = f"{a['parameter']} = {a['estimate']:.3g} ± {a['stderr']:.2g} kg m²"
+        parts.append(head + (f" ({100 * a['cv_gain']:.1f} % of the summed {a['axis']} residual), named" if a["named"]
+                             else f": not named, it {a['why_not']} on {a['axis']}"))
+    return [f"Slow torque balance (each inertia entry judged on its axis's torque residual summed over "
+            f"{slow['horizon']} samples, after the named effects): " + "; ".join(parts) + ".\n"]
+
+
 def _clean(step: dict) -> dict:
     out = {}
     for k, v in step.items():
@@ -112,7 +127,11 @@ def note_nulls(doc: dict) -> dict:
     if any(p.startswith("anatomy.") for p in nulls):
         notes.append("anatomy: null for an axis whose held-out residual is at the noise floor (nothing above "
                      "noise to share out)")
-    other = [p for p in nulls if not p.startswith("anatomy.")]
+    held = [p for p in nulls if p.startswith("effects[") and ".stderr." in p]
+    if held:
+        notes.append(f"stderr null for a parameter held at the vehicle file's value, not estimated "
+                     f"(selection.slow_torque says why): {', '.join(held)}")
+    other = [p for p in nulls if not p.startswith("anatomy.") and p not in held]
     if other:
         notes.append(f"null where the number is not finite on this data (not computable): {', '.join(other)}")
     if notes:
@@ -209,6 +228,7 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
                  "C_T error: the measured roll/pitch torque is not the rotor map's (inertia, latency or smoothing "
                  f"of the attitude channel).  `{name}` is fitted on the force rows, where it is the same term as "
                  "`mass_error` (reported as confounded).\n")
+    L += _slow_torque_lines(doc["selection"].get("slow_torque"))
     if doc["selection"].get("rejected"):
         L.append("Candidates not named on this data (unphysical, self-contradicting, or collinear with a "
                  "named effect):\n")

@@ -98,9 +98,9 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
         t = abs(est) / se if se > 0 else 0.0
         inside = bool(bounds[0][a] <= est <= bounds[1][a])
         ok = gain >= min_gain and t >= t_name and inside
-        why = None if ok else ("outside its plausible range" if not inside else
+        why = None if ok else ("is outside its plausible range" if not inside else
                                f"explains {100 * gain:.1f} % of the summed residual (< {100 * min_gain:g} %)"
-                               if gain < min_gain else f"only {t:.1f} s.e. from zero (< {t_name:g})")
+                               if gain < min_gain else f"is only {t:.1f} s.e. from zero (< {t_name:g})")
         out.append({"axis": AXIS_NAMES[a], "parameter": CATALOG[EFFECT].params[a], "estimate": est, "stderr": se,
                     "cv_gain": gain, "t": t, "named": ok, "why_not": why})
     return out
