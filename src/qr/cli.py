@@ -97,31 +97,30 @@ def _parser() -> argparse.ArgumentParser:
                    help="CSV (a Markdown twin is written beside it); never an existing file")
     s.add_argument("--force", action="store_true", help="replace existing --out files")
 
-    s = sub.add_parser("diagnose", help="name what the nominal model gets wrong (../shared/spec/diagnosis.md)",
-                       formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
-                              "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
-                              "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml")
-    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
-                   help="canonical flight(s), and optional Hydra overrides (conf/diagnose/default.yaml), "
-                        "before or after the options")
-    s.add_argument("--vehicle", required=True, help="vehicle YAML (nominal, or an extended one to build on)")
-    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
-    s.add_argument("--force", action="store_true", help=FORCE_HELP)
-
-    s = sub.add_parser("evaluate", help="multi-step rollout of vehicle models (../shared/spec/evaluate.md)",
-                       formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="examples:\n  qr evaluate flight.csv --vehicle v.yaml --vehicle diag/extended_vehicle.yaml "
-                              "--out ev\n  qr evaluate a.csv b.csv --vehicle v.yaml --out ev evaluate.horizon=100\n"
-                              "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png")
-    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
-                   help="canonical flight(s), and optional Hydra overrides (conf/evaluate/default.yaml)")
-    s.add_argument("--vehicle", required=True, action="append",
-                   help="vehicle YAML to score (repeatable; the first one also filters and is the references' nominal)")
-    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
-    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    _flights_command(sub, "diagnose", "name what the nominal model gets wrong (../shared/spec/diagnosis.md)",
+                     "examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
+                     "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
+                     "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml",
+                     vehicle=dict(help="vehicle YAML (nominal, or an extended one to build on)"))
+    _flights_command(sub, "evaluate", "multi-step rollout of vehicle models (../shared/spec/evaluate.md)",
+                     "examples:\n  qr evaluate flight.csv --vehicle v.yaml --vehicle diag/extended_vehicle.yaml "
+                     "--out ev\n  qr evaluate a.csv b.csv --vehicle v.yaml --out ev evaluate.horizon=100\n"
+                     "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
+                     vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
+                                                        "filters and is the references' nominal)"))
     p.commands = sub.choices  # name -> subparser (for _parse)
     return p
+
+
+def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> None:
+    """A stage command on flights: ``FLIGHT.csv ... [KEY=VALUE ...] --vehicle V --out DIR [--force]``."""
+    s = sub.add_parser(name, help=help, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=epilog)
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
+                   help=f"canonical flight(s), and optional Hydra overrides (conf/{name}/default.yaml), "
+                        "before or after the options")
+    s.add_argument("--vehicle", required=True, **vehicle)
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
 
 
 OUT_DIR_HELP = ("output folder: new, empty, or a previous qr output (only the files qr wrote there are "

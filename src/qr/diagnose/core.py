@@ -376,10 +376,11 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     def refit(effects):
         """One-step fit of ``effects`` on the training part, the slow-balance parameters kept."""
         own = [e for e in effects if e not in fixed]
-        th_own = fit(stats, own) if own else np.zeros(0)
-        cols, out = Columns.of(effects), np.zeros(Columns.of(effects).size)
+        th_own, own_cols = (fit(stats, own) if own else np.zeros(0)), Columns.of(own)
+        cols = Columns.of(effects)
+        out = np.zeros(cols.size)
         for e in effects:
-            out[cols.slices[e]] = fixed[e][0] if e in fixed else th_own[Columns.of(own).slices[e]]
+            out[cols.slices[e]] = fixed[e][0] if e in fixed else th_own[own_cols.slices[e]]
         return out
 
     test = prep.test
