@@ -45,6 +45,9 @@ COMBOS = [
     # the closed loop cancels blade flapping's torque with rotor torque: until flapping is named, the
     # torque rows contradict the force rows on C_T (the measured brushless Crazyflie flights)
     ("thrust_gain", "blade_flapping"),
+    # issue 13's torque-side candidates, each beside flapping and a C_T error (the measured pair)
+    ("inertia_error", "blade_flapping", "thrust_gain"),
+    ("yaw_torque_gain", "blade_flapping", "thrust_gain"),
 ]
 NOISE_LEVELS = {"low": NoiseConfig(position_std=0.0003, attitude_std=0.002, rotor_std=0.003),
                 "default": NoiseConfig(),
