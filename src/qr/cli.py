@@ -7,6 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from . import __version__
 from .errors import EXIT_BAD_INPUT, QrInputError, QrInputWarning
 
 EXAMPLES = """\
@@ -16,6 +17,9 @@ commands:
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
   evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
+  filter     Kalman filters / smoother (Hydra overrides; = python -m qr.filter)
+  learn      train and test residual models, -m for a sweep (Hydra; = python -m qr.train)
+  simulate   closed-loop study and stability analysis (Hydra; = python -m qr.simulate)
 
 examples:
   qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
@@ -28,12 +32,13 @@ examples:
       --out summary.csv
 
 stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a sweep):
-  python -m qr.filter    Kalman filters / smoother: canonical flight -> state table + NIS report
-      python -m qr.filter filter=auto filter.flight=flight.csv filter.vehicle=vehicle.yaml filter.out=states.parquet
-  python -m qr.train     train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
-      python -m qr.train -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
-  python -m qr.simulate  closed-loop tracking study and stability analysis (thesis Chapter 5)
-      python -m qr.simulate sim.task=stability
+  qr filter     Kalman filters / smoother: canonical flight -> state table + NIS report
+      qr filter filter=auto filter.flight=flight.csv filter.vehicle=vehicle.yaml filter.out=states.parquet
+  qr learn      train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
+      qr learn -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
+  qr simulate   closed-loop tracking study and stability analysis (thesis Chapter 5)
+      qr simulate sim.task=stability
+  (python -m qr.filter / qr.train / qr.simulate take the same arguments)
 
 the whole workflow (Snakefile; docs/workflow.md):
   snakemake --cores 2                                          every stage, resumable after a kill
@@ -53,6 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
                                 "from measured flight logs.", epilog=EXAMPLES,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"qr {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
     s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -108,8 +114,27 @@ def _parser() -> argparse.ArgumentParser:
                      "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
                      vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
                                                         "filters and is the references' nominal)"))
+    for name, (_, help) in HYDRA_STAGES.items():  # listed here, parsed by Hydra (_parse)
+        sub.add_parser(name, help=help, add_help=False)
     p.commands = sub.choices  # name -> subparser (for _parse)
     return p
+
+
+# qr <stage> [HYDRA ARGS]: the stage's own Hydra entry point (overrides, -m sweeps, --help, --cfg job)
+HYDRA_STAGES = {"filter": ("qr.filter", "Kalman filters / smoother on one flight (Hydra overrides)"),
+                "learn": ("qr.train", "train and test residual models; -m: a sweep (Hydra overrides)"),
+                "simulate": ("qr.simulate", "closed-loop study and stability analysis (Hydra overrides)")}
+
+
+def _cmd_hydra_stage(a) -> None:
+    import importlib
+
+    module = importlib.import_module(HYDRA_STAGES[a.command][0])
+    argv, sys.argv = sys.argv, [f"qr {a.command}", *a.rest]
+    try:
+        module.main()
+    finally:
+        sys.argv = argv
 
 
 def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> None:
@@ -250,6 +275,8 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
     """The documented ``qr diagnose FLIGHT... --vehicle V --out D [KEY=VALUE ...]``: overrides may follow
     the options (argparse's intermixed parsing, which only a parser without subcommands offers)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in HYDRA_STAGES:
+        return argparse.Namespace(command=argv[0], rest=argv[1:])
     args, rest = parser.parse_known_args(argv)
     if args.command in ("diagnose", "evaluate"):
         rest = argv[argv.index(args.command) + 1:]
@@ -270,8 +297,8 @@ def _main(argv):
     # SIGTERM (kill, a cancelled job) ends the command like Ctrl-C: its temporaries are removed
     with sigterm_raises():
         try:
-            {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary,
-             "diagnose": _cmd_diagnose, "evaluate": _cmd_evaluate}[args.command](args)
+            {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
+             "evaluate": _cmd_evaluate, **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT

@@ -395,13 +395,13 @@ def sim_config(overrides=()) -> dict:
     return to_dict(compose(overrides))["sim"]
 
 
-def _main():
+def main():
     import hydra
 
     from .config import CONF_DIR, to_dict
 
     @hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")
-    def main(cfg) -> None:
+    def entry(cfg) -> None:
         logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
         c = to_dict(cfg)
         try:
@@ -410,8 +410,8 @@ def _main():
             print(f"qr simulate: error: {e}", file=sys.stderr)
             sys.exit(2)
 
-    main()
+    entry()
 
 
 if __name__ == "__main__":
-    _main()
+    main()

@@ -8,19 +8,26 @@ drawn twice counts twice), so a replicate costs one small solve.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
-from .normal_equations import BlockStats, positive_definite, solve
+from .box_qp import box_qp_many
+from .normal_equations import BlockStats, positive_definite
 
 
+@lru_cache(maxsize=64)
 def block_counts(n_blocks: int, n: int, seed: int, group: int = 1) -> np.ndarray:
     """``(n, n_blocks)`` multiplicities of each block in each replicate; runs of ``group`` consecutive
-    blocks are drawn together."""
+    blocks are drawn together.  Cached (the selection asks the same draw for every candidate set), so
+    read-only."""
     rng = np.random.default_rng(seed)
     g = max(n_blocks // group, 1)
     of = np.minimum(np.arange(n_blocks) // group, g - 1)
     counts = np.array([np.bincount(rng.integers(0, g, g), minlength=g) for _ in range(n)], dtype=float)
-    return counts[:, of]
+    out = counts[:, of]
+    out.flags.writeable = False
+    return out
 
 
 def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: np.ndarray | None = None
@@ -48,6 +55,8 @@ def solve_many(Gb: np.ndarray, hb: np.ndarray, lb=None, ub=None) -> np.ndarray:
         Gn[i] = positive_definite(Gn[i])
     out = np.linalg.solve(Gn, (hb / d)[:, :, None])[:, :, 0] / d
     if lb is not None:
-        for i in np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1)):
-            out[i] = solve(Gb[i], hb[i], 1e-9, lb, ub)
+        rows = np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1))
+        if rows.size:
+            out[rows] = box_qp_many(Gn[rows], hb[rows] / d[rows], lb * d[rows], ub * d[rows],
+                                    out[rows] * d[rows]) / d[rows]
     return out

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..effects import CATALOG, Signals
+from .box_qp import box_qp
 
 
 @dataclass
@@ -164,15 +165,7 @@ def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -
     theta = np.linalg.solve(Gs, h / d) / d
     if lb is None or (np.all(theta >= lb) and np.all(theta <= ub)):
         return theta
-    # bounded: min ||Lᵀ x - L⁻¹ h||² with G = L Lᵀ is the same quadratic
-    from scipy.linalg import cho_factor, solve_triangular
-    from scipy.optimize import lsq_linear
-
-    L, _ = cho_factor(Gs, lower=True)
-    L = np.tril(L)
-    b = solve_triangular(L, h / d, lower=True)
-    res = lsq_linear(L.T, b, bounds=(lb * d, ub * d), method="bvls")
-    return res.x / d
+    return box_qp(Gs, h / d, lb * d, ub * d, theta * d) / d
 
 
 def loss(G, h, s, n, theta) -> float:
