@@ -27,6 +27,9 @@ def test_run_has_provenance_and_status(tmp_path, monkeypatch):
     assert len(ok.data.tags["mlflow.source.git.commit"]) >= 7
     assert ok.data.tags["qr.config_hash"] == tracking.config_hash({"model": {"layers": 2}})
     assert str(tmp_path) in tracking.tracking_uri()
+    # each stage's experiment says what it holds (the UI's description)
+    exp = client.get_experiment(tracking.experiment_id("diagnose"))
+    assert exp.tags[tracking.NOTE] == tracking.DESCRIPTIONS["diagnose"]
 
 
 def test_two_processes_logging_at_once_lose_nothing(tmp_path, monkeypatch):

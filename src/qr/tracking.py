@@ -134,18 +134,38 @@ def _client():
     return mlflow.MlflowClient()
 
 
+# what each experiment holds: the MLflow UI shows it as the experiment's description
+DESCRIPTIONS = {
+    "ingest": "Raw logs to canonical flights: one run per flight set summary (samples, dropouts, rates).",
+    "filter": "State estimation per flight (position KF, attitude ESKF on SO(3), rotor-speed KF, smoother): "
+              "tuned noise, NIS consistency, run time.",
+    "learn": "Residual force/torque models (ANN, linear, GPR): one run per model, sweeps as parent runs; "
+             "test RMSE and its ratio to the nominal model's.",
+    "diagnose": "qr diagnose: named effects with parameters and standard errors, nominal vs extended held-out "
+                "RMSE, replay and rollout.",
+    "simulate": "Closed-loop tracking study (LQR + PD on a Bezier trajectory), thesis Chapter 5: position RMSE "
+                "per controller and residual model.",
+    "stability": "Eq. 5.15 stability analysis of the closed loop with each learned linear model.",
+}
+NOTE = "mlflow.note.content"
+
+
 def experiment_id(stage: str) -> str:
-    """Experiment ``qr-<stage>``, created once (under the lock) if missing."""
+    """Experiment ``qr-<stage>``, created once (under the lock) if missing, with its description."""
     name = f"qr-{stage}"
+    note = DESCRIPTIONS.get(stage)
     with _store_lock():
         client = _client()
         exp = _retry(client.get_experiment_by_name, name)
         if exp is not None:
+            if note and exp.tags.get(NOTE) != note:
+                _retry(client.set_experiment_tag, exp.experiment_id, NOTE, note)
             return exp.experiment_id
         location = None
         if _is_local_sqlite(tracking_uri()):
             location = (results_dir() / "mlartifacts").as_uri()
-        return _retry(client.create_experiment, name, artifact_location=location)
+        return _retry(client.create_experiment, name, artifact_location=location,
+                      tags={NOTE: note} if note else None)
 
 
 class Run:
