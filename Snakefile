@@ -9,6 +9,7 @@ include: "workflow/rules/learn.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/simulate.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:
@@ -23,3 +24,4 @@ rule all:
         rules.learn_best.output,
         rules.diagnosis_summary.output,
         rules.evaluation_summary.output,
+        rules.overview.output,

@@ -1,0 +1,10 @@
+"""Snakemake rule `overview`: the report's overview page from the workflow's tables and figures."""
+import sys
+
+from qr.report.overview import write_overview
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    write_overview(snakemake.output[0], snakemake.input.diagnosis, snakemake.input.rollout,
+                   dict(zip(snakemake.params.thesis, snakemake.input.thesis)),
+                   [tuple(f) for f in snakemake.params.figures])
