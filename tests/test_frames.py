@@ -50,3 +50,24 @@ def test_skew_is_cross_product():
     a, b = np.array([1.0, -2.0, 0.5]), np.array([0.3, 0.7, -1.1])
     np.testing.assert_allclose(frames.skew(a) @ b, np.cross(a, b))
     np.testing.assert_allclose(frames.so3_log(frames.so3_exp(np.array([0.1, -0.2, 0.3]))), [0.1, -0.2, 0.3])
+
+
+def test_the_compiled_twins_agree_with_the_scipy_conventions():
+    """qr.frames_compiled (the filters' fast path, the plant, the rollout) = qr.frames (scipy)."""
+    from scipy.spatial.transform import Rotation
+
+    from qr import frames_compiled as fc
+
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        a, b = Rotation.random(2, random_state=rng).as_quat(scalar_first=True)
+        phi = rng.normal(size=3) * rng.choice([1e-5, 1e-2, 1.0])
+        assert np.allclose(fc.quat_to_R(a), frames.quat_to_rot(a), atol=1e-14)
+        assert np.allclose(fc.qmul(a, b), frames.quat_multiply(a, b), atol=1e-14)
+        assert np.allclose(fc.qexp(phi), Rotation.from_rotvec(phi).as_quat(scalar_first=True), atol=1e-14)
+        assert np.allclose(fc.qlog(a), Rotation.from_quat(a, scalar_first=True).as_rotvec(), atol=1e-12)
+        assert np.allclose(fc.qmul(a, fc.qconj(a)), [1, 0, 0, 0], atol=1e-14)
+        assert np.allclose(fc.cross(phi, a[1:]), np.cross(phi, a[1:]), atol=1e-14)
+        # the angle of a⁻¹ ⊗ b, sign of either quaternion aside
+        ang = (Rotation.from_quat(a, scalar_first=True).inv() * Rotation.from_quat(b, scalar_first=True)).magnitude()
+        assert abs(fc.quat_angle(a, -b) - ang) < 1e-7

@@ -23,7 +23,8 @@ import numba as nb
 import numpy as np
 import pandas as pd
 
-from .sim.plant import N_P, P_DELAY, P_MARKER, cross, quat_to_R, rigid_body_deriv, true_params
+from .frames_compiled import cross, quat_angle, quat_to_R
+from .sim.plant import N_P, P_DELAY, P_MARKER, rigid_body_deriv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
@@ -49,13 +50,6 @@ def _step(x, u, P, frozen, dt, zero):
     n = math.sqrt(xn[6] ** 2 + xn[7] ** 2 + xn[8] ** 2 + xn[9] ** 2)
     xn[6:10] /= n
     return xn
-
-
-@nb.njit(cache=True)
-def _angle(qa, qb):
-    """Rotation angle of qa⁻¹ ⊗ qb (rad, in [0, π])."""
-    d = abs(qa[0] * qb[0] + qa[1] * qb[1] + qa[2] * qb[2] + qa[3] * qb[3])
-    return 2.0 * math.acos(min(d, 1.0))
 
 
 STRIDE = 32
@@ -109,7 +103,7 @@ def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
                 sums[h - 1, 1] += math.sqrt(((v - tv[j]) ** 2).sum())
                 counts[h - 1, 1] += 1
             if np.isfinite(tq[j, 0]):
-                sums[h - 1, 2] += _angle(tq[j], x[6:10])
+                sums[h - 1, 2] += quat_angle(tq[j], x[6:10])
                 counts[h - 1, 2] += 1
             if np.isfinite(tw[j, 0]):
                 sums[h - 1, 3] += math.sqrt(((x[10:13] - tw[j]) ** 2).sum())

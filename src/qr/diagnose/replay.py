@@ -17,7 +17,8 @@ import numpy as np
 import pandas as pd
 
 from ..frames import quat_to_rot
-from ..sim.plant import P_DELAY, P_MARKER, cross, quat_to_R, rigid_body_deriv, true_params
+from ..frames_compiled import cross, quat_to_R
+from ..sim.plant import P_DELAY, P_MARKER, rigid_body_deriv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 

@@ -14,6 +14,8 @@ import math
 import numba as nb
 import numpy as np
 
+from ..frames_compiled import qconj, qexp, qlog, qmul, quat_to_R
+
 # ---- integrator chains ---------------------------------------------------------------
 
 
@@ -226,54 +228,6 @@ def chain_smooth(t, X, Ps, q, exact, d):
 
 
 @nb.njit(cache=True)
-def qmul(a, b):
-    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
-
-
-@nb.njit(cache=True)
-def qexp(phi):
-    """Unit quaternion of a rotation vector (scipy's ``from_rotvec`` series below 1e-3 rad)."""
-    th = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
-    if th <= 1e-3:
-        s = 0.5 - th**2 / 48 + th**4 / 3840
-    else:
-        s = math.sin(th / 2) / th
-    return np.array([math.cos(th / 2), s * phi[0], s * phi[1], s * phi[2]])
-
-
-@nb.njit(cache=True)
-def qlog(q):
-    """Rotation vector of a quaternion, shortest rotation (scipy's ``as_rotvec``)."""
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    sg = -1.0 if q[0] < 0 else 1.0
-    w = sg * q[0] / n
-    v = sg * q[1:] / n
-    vn = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
-    th = 2 * math.atan2(vn, w)
-    if th <= 1e-3:
-        s = 2 + th**2 / 12 + 7 * th**4 / 2880
-    else:
-        s = th / math.sin(th / 2)
-    return s * v
-
-
-@nb.njit(cache=True)
-def qconj(q):
-    return np.array([q[0], -q[1], -q[2], -q[3]])
-
-
-@nb.njit(cache=True)
-def qrot(q):
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-@nb.njit(cache=True)
 def eskf_coeffs(dt, exact, c):
     """Chain coefficients of the (corrected) eq. 4.19 Φ.
 
@@ -389,7 +343,7 @@ def gyro_update(quat, psi, P, zg, rg):
     ``ω_b = Rᵀ ω`` with ``R = R̂ exp(δθ)``: ``H = [[ω̂_b]×, R̂ᵀ, 0, 0]`` to first order.
     Joseph-form update, as filterpy's ``update(z, R, H)``.
     """
-    R = qrot(quat)
+    R = quat_to_R(quat)
     wb = np.zeros(3)
     for a in range(3):
         wb[a] = R[0, a] * psi[0] + R[1, a] * psi[1] + R[2, a] * psi[2]
@@ -441,7 +395,7 @@ def eskf_forward(t, zq, valid, qd, r, exact, quat0, psi0, P0, store, reset_angle
     for k in range(N):
         if k > 0:
             dt = t[k] - t[k - 1]
-            R = qrot(quat)
+            R = quat_to_R(quat)
             eskf_coeffs(dt, exact, c)
             eskf_predict(P, R, c, T, P)  # eq. 4.22 (out may alias P: T holds Φ P)
             eskf_add_q(P, R, dt, qd, exact)
@@ -509,7 +463,7 @@ def eskf_smooth(t, QT, PSI, Ps, qd, exact, d, resets):
         if resets[k + 1]:
             continue
         dt = t[k + 1] - t[k]
-        R = qrot(QT[k])
+        R = quat_to_R(QT[k])
         eskf_coeffs(dt, exact, c)
         eskf_predict(Ps[k], R, c, T, pP)
         Qs[:, :] = 0.0

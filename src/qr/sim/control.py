@@ -22,7 +22,7 @@ import numpy as np
 from scipy.linalg import solve_continuous_are
 
 from ..frames import G
-from .plant import cross, quat_to_R
+from ..frames_compiled import cross, quat_to_R
 
 # controller parameter vector layout
 C_MASS, C_J, C_BINV, C_KP, C_KD, C_KR, C_KW, C_UMIN, C_UMAX, C_TILT = 0, 1, 4, 20, 23, 26, 29, 32, 33, 34

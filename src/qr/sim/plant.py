@@ -19,6 +19,8 @@ import math
 import numba as nb
 import numpy as np
 
+from ..frames_compiled import cross, quat_to_R
+
 from ..frames import G
 
 # ---- parameter vector of the TRUE plant (one place for its layout) ----------
@@ -85,27 +87,6 @@ def true_params(vehicle, effects: list[dict] | None = None) -> np.ndarray:
     if P[P_MASS] <= 0 or np.any(P[P_J:P_J + 3] <= 0):
         raise ValueError("effects make the true mass or inertia non-positive")
     return P
-
-
-@nb.njit(cache=True)
-def quat_to_R(q):
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    R = np.empty((3, 3))
-    R[0, 0] = 1 - 2 * (y * y + z * z)
-    R[0, 1] = 2 * (x * y - w * z)
-    R[0, 2] = 2 * (x * z + w * y)
-    R[1, 0] = 2 * (x * y + w * z)
-    R[1, 1] = 1 - 2 * (x * x + z * z)
-    R[1, 2] = 2 * (y * z - w * x)
-    R[2, 0] = 2 * (x * z - w * y)
-    R[2, 1] = 2 * (y * z + w * x)
-    R[2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
-@nb.njit(cache=True)
-def cross(a, b):
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 @nb.njit(cache=True)

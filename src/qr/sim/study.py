@@ -32,7 +32,8 @@ from ..effects import Signals, validate_effect_list
 from ..frames import G, euler_zyx, rot_to_quat
 from ..states import COLUMNS
 from .control import Gains, control, controller_params
-from .plant import (P_DELAY, P_MASS, P_TAU, delayed_speeds, history_buffer, plant_accels, quat_to_R, rk4_step,
+from ..frames_compiled import quat_to_R
+from .plant import (P_DELAY, P_MASS, P_TAU, delayed_speeds, history_buffer, plant_accels, rk4_step,
                     true_params)
 
 ORACLE = "oracle"
