@@ -158,6 +158,23 @@ def test_a_tracked_diagnosis_logs_the_rollout_at_the_horizon(tmp_path, monkeypat
     assert "rollout.rate_frozen.w_at_20" in run.data.metrics
 
 
+def test_a_tracked_evaluation_logs_each_model_at_the_horizon_and_its_ratio(tmp_path, monkeypatch):
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.evaluate import run_evaluation
+
+    flight, nominal, true = _synth(tmp_path)
+    doc = run_evaluation([flight], [nominal, true], tmp_path / "e", ["evaluate.horizon=20"], figures=False,
+                         log=lambda m: None, track="unit")
+    (run,) = tracking._client().search_runs([tracking.experiment_id("evaluate")])
+    m, models = run.data.metrics, doc["models"]
+    assert run.info.run_name == "unit" and run.info.status == "FINISHED"
+    for name in models:
+        assert m[f"{name}.p_at_20"] == pytest.approx(models[name]["p"]["mae"][-1])
+        assert m[f"{name}.w_ratio"] == pytest.approx(models[name]["w"]["mae"][-1] / models["rate_frozen"]["w"]["mae"][-1])
+    assert m["rate_frozen.R_ratio"] == 1.0
+
+
 def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
     """Residual of a constant label 1 left as a fast ±1 alternation: nothing explained sample by sample
     (R² = 1 − n/n = 0), everything summed over 2 samples (each pair sums to 0); a slow error (a

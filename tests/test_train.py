@@ -130,6 +130,10 @@ def test_multirun_is_a_parent_run_with_children_logged_by_two_processes(tmp_path
         assert c.data.params["model.kind"] == "linear" and c.data.tags["qr.leaks_target"] == "false"
         assert {a.path for a in client.list_artifacts(c.info.run_id, "model")} >= {"model/model.json"}
         assert len(c.data.tags["qr.data_digest"]) == 16
+        # the data set is the run's input, under its name, with the same content digest
+        (used,) = c.inputs.dataset_inputs
+        assert used.dataset.name == "table" and used.dataset.digest == c.data.tags["qr.data_digest"]
+        assert {t.key: t.value for t in used.tags}["mlflow.data.context"] == "training"
 
 
 def test_learning_tables_have_the_thesis_columns(tmp_path):

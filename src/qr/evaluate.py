@@ -85,11 +85,12 @@ def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.
 
 
 def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
-                   figures: bool = True, reports: list | None = None) -> dict:
+                   figures: bool = True, reports: list | None = None, track: str | None = None) -> dict:
     """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work).
 
     ``reports``: the filter stage's report of each flight (its tuned noise values are reused instead
-    of tuning again, as ``qr diagnose`` does)."""
+    of tuning again, as ``qr diagnose`` does).  ``track``: the name of an MLflow run (experiment
+    ``qr-evaluate``) to log it as (none: not tracked)."""
     from .outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
@@ -148,8 +149,33 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
                     mae_figure(doc["models"], tmp / "figures" / "rollout_mae.png")}
         write_text(tmp / "report.md", report(doc, figs))
         write_json(tmp / "evaluation.json", doc)
+    if track:
+        track_evaluation(track, doc, [*flights, *vehicles], out)
     say(f"wrote {out}/evaluation.json")
     return doc
+
+
+def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
+    """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``."""
+    from . import tracking
+
+    H, models = doc["horizon"], doc["models"]
+    base = models.get("rate_frozen", {})
+    metrics = {}
+    for model, block in models.items():
+        for q, d in block.items():
+            x = d["mae"][-1] if d.get("mae") else None
+            ref = base.get(q, {}).get("mae", [None])[-1] if base else None
+            if x is not None:
+                metrics[f"{model}.{q}_at_{H}"] = x
+                if ref:
+                    metrics[f"{model}.{q}_ratio"] = x / ref
+    with tracking.run("evaluate", name, doc["config"], inputs=inputs) as run:
+        run.metrics(metrics)
+        run.tags({"qr.models": ",".join(models)})
+        for p in ("evaluation.json", "report.md"):
+            if (Path(outdir) / p).exists():
+                run.artifact(Path(outdir) / p)
 
 
 def table(models: dict, H: int) -> list[str]:
@@ -215,7 +241,8 @@ def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
     return [f for f in flights if f not in test], test
 
 
-def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=()) -> dict:
+def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
+                      track: str | None = None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal and the
     extended vehicle on the held-out ones (``single_overrides`` too when one flight trains)."""
     import json
@@ -242,7 +269,8 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
             physical.pop("torque_remainder")
             save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
             models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
-        return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test])
+        return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
+                              track=track)
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:

@@ -145,6 +145,8 @@ DESCRIPTIONS = {
                 "RMSE, replay and rollout.",
     "simulate": "Closed-loop tracking study (LQR + PD on a Bezier trajectory), thesis Chapter 5: position RMSE "
                 "per controller and residual model.",
+    "evaluate": "Multi-step rollout on held-out flights (../shared/spec/evaluate.md): MAE at the horizon per "
+                "model and its ratio to the benchmark's physics baseline (rate_frozen).",
     "stability": "Eq. 5.15 stability analysis of the closed loop with each learned linear model.",
 }
 NOTE = "mlflow.note.content"
@@ -198,6 +200,17 @@ class Run:
 
     def artifact(self, path: str | Path, subdir: str | None = None) -> None:
         _retry(self.client.log_artifact, self.id, str(path), subdir)
+
+    def dataset(self, path: str | Path, table, context: str = "training") -> None:
+        """The data set as the run's input (the UI's "Datasets used"): name, source, schema and qr's
+        content digest, so runs on the same data are found by it."""
+        import mlflow.data
+        from mlflow.entities import DatasetInput, InputTag
+
+        ds = mlflow.data.from_pandas(table, source=str(Path(path).resolve()), name=Path(path).stem,
+                                     digest=data_digest([path])[:16])
+        _retry(self.client.log_inputs, self.id,
+               [DatasetInput(ds._to_mlflow_entity(), [InputTag("mlflow.data.context", context)])])
 
 
 def _finite(v) -> bool:
@@ -317,4 +330,7 @@ class _NullRun(Run):
         pass
 
     def artifact(self, path, subdir=None):
+        pass
+
+    def dataset(self, path, table, context="training"):
         pass

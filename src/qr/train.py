@@ -100,6 +100,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
         tags["mlflow.parentRunId"] = parent_id
     with tracking.run(STAGE, name, config=logged, inputs=[cfg["dataset"]], tags=tags) as tracked:
         table = datasets.read_table(cfg["dataset"])
+        tracked.dataset(cfg["dataset"], table)
         X, y = datasets.xy(table, inputs, target)
         sp = datasets.split(table, cfg["split"])
         model_cfg = {k: v for k, v in cfg["model"].items() if k != "kind"}
