@@ -122,3 +122,41 @@ def test_thesis_style_figures_nis_figure_and_summary(flight_csv, tmp_path):
     table = pd.read_csv(tmp_path / "summary.csv")
     assert list(table["flight"]) == ["s/f1"] and table.loc[0, "position_ok"] == report["nis"]["position"]["consistent"]
     assert (tmp_path / "summary.md").exists()
+
+
+def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
+    """The filter stage is the home of the state estimates: its cross-fit file holds each segment's matched
+    estimate and even/odd halves; a diagnosis given it reads them instead of filtering again and gets
+    the same numbers digit for digit; made with other filter settings, the file is not used."""
+    from qr.diagnose import run_diagnosis
+    from qr.effects import parse_effect_spec
+    from qr.vehicle import load_vehicle
+
+    v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    flight, _ = synthesize(v, [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15")],
+                           SynthConfig(duration=40.0, rate=100.0, seed=4))
+    t = flight["t"].to_numpy()
+    flight = flight[(t < 18.0) | (t > 19.0)].reset_index(drop=True)  # a logger outage: two segments
+    path = tmp_path / "gap.csv"
+    write_flight(flight, path)
+    vf = VEHICLES / "asctec_hummingbird.yaml"
+    xfit = tmp_path / "gap.crossfit.parquet"
+    report = run_with_overrides(path, vf, tmp_path / "gap.parquet", tmp_path / "gap.nis.json", ["filter=auto"],
+                                track=False, crossfit_out=xfit)
+    table = pd.read_parquet(xfit)
+    assert sorted(table["segment_start"].unique()) == [0.0, pytest.approx(19.01)]
+    assert sorted(table["part"].unique()) == ["even", "full", "odd"]
+
+    def diagnose(out, overrides=(), estimates=None):
+        said = []
+        doc = run_diagnosis([path], vf, tmp_path / out, list(overrides), reports=[report], estimates=estimates,
+                            figures=False, log=said.append)
+        return doc, [m for m in said if m.startswith("estimates of")]
+
+    own, said_own = diagnose("own")
+    read, said_read = diagnose("read", estimates=[xfit])
+    assert len(said_read) == 2 and all(m.endswith("read from the filter stage") for m in said_read)
+    assert all("filter=auto" in m for m in said_own)
+    assert json.dumps(own, sort_keys=True) == json.dumps(read, sort_keys=True)
+    _, said_other = diagnose("other", ["filter.smoother=false"], estimates=[xfit])
+    assert len(said_other) == 2 and not any("read from" in m for m in said_other)

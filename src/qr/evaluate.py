@@ -242,7 +242,7 @@ def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
 
 
 def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
-                      track: str | None = None) -> dict:
+                      track: str | None = None, estimates=None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal and the
     extended vehicle on the held-out ones (``single_overrides`` too when one flight trains)."""
     import json
@@ -259,8 +259,10 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     train, test = held_out_by_flight(flights)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     extra = list(single_overrides) if len(train) == 1 else []
+    stored = dict(zip(flights, estimates)) if estimates else {}
     run_diagnosis(train, vehicle, diag_out, [*overrides, *extra], track=False, figures=False,
-                  reports=[reports[f] for f in train], log=lambda m: None)
+                  reports=[reports[f] for f in train], log=lambda m: None,
+                  estimates=[stored[f] for f in train] if stored else None)
     ext = Path(diag_out) / "extended_vehicle.yaml"
     models = [vehicle, str(ext)]
     with tempfile.TemporaryDirectory() as tmp:

@@ -47,11 +47,14 @@ def _metrics(report: dict, seconds: float) -> dict:
 
 
 def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: str | None = None,
-               progress: bool = False, track: bool = True) -> dict:
+               progress: bool = False, track: bool = True, crossfit_out=None) -> dict:
     """Filter one flight file, write the state table and the NIS report atomically, track it in MLflow.
 
     ``track=False`` leaves the MLflow run to :func:`track_runs` (the workflow logs all flights'
     runs from one process: importing MLflow per job would cost more than filtering).
+    ``crossfit_out``: also write every airborne segment's matched estimate and its even/odd
+    cross-fitting halves (:func:`qr.diagnose.crossfit.segment_estimates`), which the diagnoses read
+    instead of filtering the flight again.
     """
     flight_path = Path(flight_path)
     name = name or flight_path.stem
@@ -65,6 +68,12 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     report["config"] = cfg
     with atomic_path(out, suffix=".parquet") as tmp:
         states.to_parquet(tmp, index=False)
+    if crossfit_out is not None:
+        from .diagnose import prepare_flight
+        from .diagnose.crossfit import segment_estimates, write_segment_estimates
+
+        table, _ = segment_estimates(flight, vehicle, cfg, report, prepare_flight)
+        write_segment_estimates(table, crossfit_out, cfg, report, vehicle)
     write_json(nis_out, report)
     if track:
         _track(name, flight_path, vehicle_file, report, states, nis_out, seconds)
@@ -97,11 +106,12 @@ def track_runs(names, flights, vehicles, states_files, nis_files) -> None:
         _track(name, f, v, json.loads(Path(nis).read_text()), pd.read_parquet(st), nis)
 
 
-def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), name=None, track=True) -> dict:
+def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), name=None, track=True,
+                       crossfit_out=None) -> dict:
     """Compose the Hydra config with ``overrides`` (``['filter=auto']``) and run :func:`run_filter`."""
     cfg = to_dict(compose(list(overrides)))
     return run_filter(flight_path, vehicle_file or vehicle_path(cfg["vehicle"]), out, nis_out, cfg["filter"], name,
-                      track=track)
+                      track=track, crossfit_out=crossfit_out)
 
 
 def figures(flight_path, states_path, outdir, title: str = "") -> list[Path]:

@@ -8,6 +8,7 @@ rule diagnose_set:
     input:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
         nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         vehicle=diagnosis_vehicle,
     output:
         directory("results/diagnosis/{set}/all"),
@@ -27,6 +28,7 @@ rule diagnose_each:
     input:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
         nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         vehicle=diagnosis_vehicle,
     output:
         flights=directory("results/diagnosis/{set}/flights"),
@@ -63,6 +65,7 @@ rule diagnose_check:
     input:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
         nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         vehicle=lambda wc: f"conf/vehicle/{DIAG_CHECK['vehicle']}.yaml",
     output:
         directory("results/diagnosis/{set}/check"),

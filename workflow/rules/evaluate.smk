@@ -7,6 +7,7 @@ rule evaluate_held_out:
     input:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
         nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         vehicle=diagnosis_vehicle,
     output:
         diagnosis=directory("results/evaluation/{set}/training_diagnosis"),

@@ -16,6 +16,9 @@ rule filter:
     output:
         states="results/filter/{set}/{flight}.parquet",
         nis="results/filter/{set}/{flight}.nis.json",
+        # every airborne segment's matched estimate and its even/odd cross-fitting halves: what the
+        # diagnoses read instead of filtering the flight again
+        crossfit="results/filter/{set}/{flight}.crossfit.parquet",
     log:
         "results/logs/filter/{set}/{flight}.log",
     benchmark:

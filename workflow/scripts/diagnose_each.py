@@ -6,4 +6,5 @@ from qr.diagnose.batch import diagnose_each
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     diagnose_each(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle,
-                  snakemake.output.flights, snakemake.output.table, snakemake.params.overrides)
+                  snakemake.output.flights, snakemake.output.table, snakemake.params.overrides,
+                  estimates=snakemake.input.crossfit)

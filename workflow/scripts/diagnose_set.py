@@ -6,4 +6,4 @@ from qr.diagnose.batch import diagnose_set
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     diagnose_set(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle, snakemake.output[0],
-                 snakemake.params.overrides)
+                 snakemake.params.overrides, estimates=snakemake.input.crossfit)

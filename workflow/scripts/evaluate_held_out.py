@@ -7,4 +7,5 @@ with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     evaluate_held_out(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle,
                       snakemake.output.diagnosis, snakemake.output.evaluation, snakemake.params.overrides,
-                      snakemake.params.single, track=f"held_out:{snakemake.wildcards.set}")
+                      snakemake.params.single, track=f"held_out:{snakemake.wildcards.set}",
+                      estimates=snakemake.input.crossfit)

@@ -46,9 +46,12 @@ OUTPUTS = ("diagnosis.json", "report.md", "extended_vehicle.yaml", "figures/")
 
 def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None, log=None,
                   return_result: bool = False, reports: list | None = None, figures: bool = True,
-                  force: bool = False):
+                  force: bool = False, estimates: list | None = None):
     """Diagnose ``flights`` and write ``out`` (refused before any work if ``out`` is not qr's to write,
-    :func:`qr.outputs.check_out_dir`; ``force``: write beside a folder's other files)."""
+    :func:`qr.outputs.check_out_dir`; ``force``: write beside a folder's other files).
+
+    ``reports`` / ``estimates``: per flight, the filter stage's report and cross-fit file; a segment
+    found there with the same filter settings is read, not filtered again (the same numbers)."""
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
@@ -60,6 +63,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..vehicle import load_vehicle, save_vehicle
     from ..segments import flight_segments
     from .coefficients import coefficient_checks
+    from .crossfit import Estimates
     from ..torque_remainder import FEATURES
     from .core import DiagnoseConfig, diagnose, extended_effects
     from .report import make_figures, note_nulls, to_json, write_report
@@ -85,11 +89,18 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
         name = Path(flights[i]).name
         _say_segments(say, name, fs)
         report = reports[i] if reports else None
+        stored = Estimates(estimates[i], to_dict(cfg.filter), report, vehicle) if estimates and report else None
         # the longest segment first: a tuning filter (filter=auto) is tuned there, once per flight
         for seg in sorted(fs.used, key=lambda s: s.window[0] - s.window[1]):
-            say(f"filtering {name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples, "
-                f"filter={cfg.filter.get('name', '?')})")
-            st, pair, report = prepare_flight(seg.rows, vehicle, to_dict(cfg.filter), report)
+            got = stored.get(seg.window[0]) if stored else None
+            if got:
+                st, pair = got
+                source = "read from the filter stage"
+            else:
+                st, pair, report = prepare_flight(seg.rows, vehicle, to_dict(cfg.filter), report)
+                source = f"filter={cfg.filter.get('name', '?')}"
+            say(f"estimates of {name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+                f"{source}")
             for table in (st, *pair):
                 table.attrs["flight"] = i  # qr.diagnose.core.prepare: one flight, split once
             work.append((i, seg.window[0], st, pair, seg.rows))

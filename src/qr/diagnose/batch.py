@@ -24,20 +24,23 @@ def _reports(nis_files):
     return [json.loads(Path(p).read_text()) for p in nis_files]
 
 
-def diagnose_set(flights, nis_files, vehicle, out, overrides=(), track=True) -> dict:
-    """One diagnosis of all ``flights`` together (canonical flights + their filter reports)."""
-    return run_diagnosis(flights, vehicle, out, overrides, track=track, reports=_reports(nis_files))
+def diagnose_set(flights, nis_files, vehicle, out, overrides=(), track=True, estimates=None) -> dict:
+    """One diagnosis of all ``flights`` together (canonical flights + their filter reports and, if given,
+    the filter stage's cross-fit estimates)."""
+    return run_diagnosis(flights, vehicle, out, overrides, track=track, reports=_reports(nis_files),
+                         estimates=estimates)
 
 
-def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=()) -> pd.DataFrame:
+def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=(), estimates=None) -> pd.DataFrame:
     """A diagnosis per flight (no figures: short flights, many of them) and one table of them."""
     rows = []
     reports = _reports(nis_files)
+    estimates = estimates or [None] * len(flights)
     with atomic_dir(out_dir) as tmp:
-        for f, rep in zip(flights, reports):
+        for f, rep, est in zip(flights, reports, estimates):
             name = Path(f).stem
             doc = run_diagnosis([f], vehicle, tmp / name, overrides, track=False, reports=[rep], figures=False,
-                                log=lambda m: None)
+                                log=lambda m: None, estimates=[est] if est else None)
             track_diagnosis(f"{Path(out_dir).parent.name}/{name}", doc, [f], tmp / name)
             rows.append({
                 "flight": name,

@@ -76,3 +76,67 @@ def halves(flight: pd.DataFrame, vehicle, cfg: dict) -> tuple[pd.DataFrame, pd.D
         st, _ = estimate(f, vehicle, cfg)
         out.append(add_matched_rotor_signals(st, f, cfg))
     return out[0], out[1]
+
+
+# ---- the filter stage's cross-fit file: every segment's estimates, written once, read by each diagnosis ----
+
+PARTS = ("full", "even", "odd")
+MIN_SEGMENT_S = 1.0  # shorter segments are not written (no diagnosis setting uses one; it filters them itself)
+
+
+def key(filter_cfg: dict, report: dict, vehicle) -> str:
+    """What the estimates depend on: the matched filter settings and the rotor-speed scale."""
+    import json
+
+    return json.dumps({"filter": matched_settings(filter_cfg, report), "hover_speed": float(vehicle.hover_speed)},
+                      sort_keys=True, default=str)
+
+
+def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None, prepare,
+                      min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
+    """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
+    (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used.
+    ``prepare``: :func:`qr.diagnose.prepare_flight` (the one recipe; the longest segment first, where a
+    tuning filter is tuned)."""
+    from ..segments import flight_segments
+
+    tables = []
+    for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):
+        st, pair, report = prepare(seg.rows, vehicle, filter_cfg, report)
+        for part, table in zip(PARTS, (st, *pair)):
+            tables.append(table.assign(segment_start=seg.window[0], part=part))
+    return pd.concat(tables, ignore_index=True), report
+
+
+class Estimates:
+    """A cross-fit file opened for one diagnosis: the tables of a segment if the file has them and was
+    made with the same filter settings and rotor-speed scale (else None: the caller filters)."""
+
+    def __init__(self, path, filter_cfg: dict, report: dict, vehicle):
+        import pyarrow.parquet as pq
+
+        meta = pq.read_schema(path).metadata or {}
+        self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, report, vehicle)
+        self.table = pd.read_parquet(path) if self.ok else None
+
+    def get(self, start: float):
+        if not self.ok:
+            return None
+        rows = self.table[self.table["segment_start"] == start]
+        if rows.empty:
+            return None
+        out = [rows[rows["part"] == p].drop(columns=["segment_start", "part"]).reset_index(drop=True)
+               for p in PARTS]
+        return out[0], (out[1], out[2])
+
+
+def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, report: dict, vehicle) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from ..atomic import atomic_path
+
+    t = pa.Table.from_pandas(table, preserve_index=False)
+    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"qr.crossfit_key": key(filter_cfg, report, vehicle).encode()})
+    with atomic_path(out, suffix=".parquet") as tmp:
+        pq.write_table(t, tmp)

@@ -14,9 +14,13 @@ The rule (one per axis, after the selection, only when it did not name
 (by block) share of the summed residual explained on axis ``a`` by at least
 ``slow_torque_min_gain``, sits at least ``selection.t_name`` block-bootstrap
 s.e. from zero and within its plausible range.  An axis that fails stays at
-the vehicle file's value (reported, with why).  In closed-loop flight the yaw
-acceleration is small and the yaw torque model weak, so the yaw entry is the
-one that usually stays.
+the vehicle file's value (reported, with why).
+
+Roll and pitch only.  On the yaw axis the balance reads ``J_zz α_z = C_Q Σ s_i u_i² + …``:
+it fixes C_Q / J_zz, the term of ``yaw_torque_gain``, and cannot tell an inertia from a
+torque coefficient; in closed loop that ratio mostly measures the controller cancelling an
+unmodelled yaw moment (a J_zz of 0.18x the file's on the measured payload flights, and a rollout
+twice as bad).  Naming it an inertia would claim what the data cannot tell.
 """
 
 from __future__ import annotations
@@ -28,9 +32,11 @@ from ..identification.bootstrap import block_counts
 
 EFFECT = "inertia_error"
 AXIS_NAMES = ("roll", "pitch", "yaw")
-# A named effect that scales an axis's rotor-map torque alone makes that axis's J entry the same term: on the
-# yaw axis ``Jzz α_z = gain C_Q Σ s_i u_i²`` fixes only gain / Jzz.  Such an axis is not tested.
-SAME_TERM = {"yaw_torque_gain": (2,)}
+# The yaw entry is never tested (above); a named effect that scales a roll/pitch axis's rotor-map torque alone
+# would make that axis's J entry the same term too (none in the catalog today).
+YAW = (2, "on the yaw axis the balance fixes only C_Q / J_zz, the term of yaw_torque_gain: not an inertia it "
+          "can tell apart")
+SAME_TERM: dict[str, tuple[int, ...]] = {}
 
 
 def window_sums(x: np.ndarray, group: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,8 +89,7 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
     for a in range(3):
         if skip and a in skip:
             out.append({"axis": AXIS_NAMES[a], "parameter": CATALOG[EFFECT].params[a], "named": False,
-                        "why_not": f"the same term as the named {skip[a]} on this axis (only their ratio is "
-                                   "identified)"})
+                        "why_not": skip[a]})
             continue
         S = per_block(x[:, a], y[:, a], block, n_blocks)
         tot = S.sum(axis=0)
@@ -110,7 +115,9 @@ def slow_torque(prep, vehicle, residual: np.ndarray, named: list[str], horizon: 
                 min_gain: float, n_boot: int, seed: int) -> dict:
     """The rule on the training rows of ``prep`` (cross-fitted: the regressor from the other half-sample
     filter), given ``residual`` (N, 6) left by the ``named`` effects on every row."""
-    skip = {a: e for e in named for a in SAME_TERM.get(e, ())}
+    skip = {a: f"the same term as the named {e} on this axis (only their ratio is identified)"
+            for e in named for a in SAME_TERM.get(e, ())}
+    skip[YAW[0]] = YAW[1]
     tr = np.flatnonzero(prep.train)
     half = (tr >= prep.pair_offset).astype(int) if prep.pair_offset else np.zeros(tr.size, dtype=int)
     # a window never spans two blocks, segments or cross-fitting halves
