@@ -160,3 +160,12 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     assert json.dumps(own, sort_keys=True) == json.dumps(read, sort_keys=True)
     _, said_other = diagnose("other", ["filter.smoother=false"], estimates=[xfit])
     assert len(said_other) == 2 and not any("read from" in m for m in said_other)
+    # the rollout of qr evaluate too (its start states: position, velocity, attitude, rate)
+    from qr.evaluate import run_evaluation
+
+    said = []
+    ev = [run_evaluation([path], [vf], tmp_path / f"ev{k}", ["evaluate.horizon=10"], figures=False,
+                         reports=[report], estimates=est, log=said.append)
+          for k, est in enumerate((None, [xfit]))]
+    assert sum("read from the filter stage" in m for m in said) == 2
+    assert json.dumps(ev[0]["models"], sort_keys=True) == json.dumps(ev[1]["models"], sort_keys=True)

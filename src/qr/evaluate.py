@@ -85,18 +85,21 @@ def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.
 
 
 def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
-                   figures: bool = True, reports: list | None = None, track: str | None = None) -> dict:
+                   figures: bool = True, reports: list | None = None, track: str | None = None,
+                   estimates: list | None = None) -> dict:
     """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work).
 
     ``reports``: the filter stage's report of each flight (its tuned noise values are reused instead
     of tuning again, as ``qr diagnose`` does).  ``track``: the name of an MLflow run (experiment
-    ``qr-evaluate``) to log it as (none: not tracked)."""
+    ``qr-evaluate``) to log it as (none: not tracked).  ``estimates``: the filter stage's cross-fit file
+    of each flight (with ``reports``): a segment's estimate is read from it where it matches (its
+    position, velocity, attitude and rate do not depend on the rotor filter's matching)."""
     from .outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
     from .atomic import atomic_dir, write_json, write_text
     from .config import to_dict
-    from .diagnose.crossfit import fixed_settings
+    from .diagnose.crossfit import Estimates, fixed_settings
     from .estimation import estimate
     from .estimation.settings import resolve as resolve_filter
     from .flight import read_flight
@@ -116,10 +119,13 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
         settings = fixed_settings(filter_cfg, reports[i]) if reports else filter_cfg
+        stored = Estimates(estimates[i], filter_cfg, reports[i], vehs[0]) if estimates and reports else None
         parts = []
         for seg in fs.used:
-            say(f"filtering {Path(f).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples)")
-            st, _ = estimate(seg.rows, vehs[0], settings)
+            got = stored.get(seg.window[0]) if stored else None
+            say(f"estimates of {Path(f).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+                + ("read from the filter stage" if got else "filtering"))
+            st = got[0] if got else estimate(seg.rows, vehs[0], settings)[0]
             st, meas, keep = pieces(st, seg.rows, ecfg.trim_s)
             steps.append(np.diff(st["t"].to_numpy(float)))
             say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
@@ -272,7 +278,7 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
             save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
             models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
         return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
-                              track=track)
+                              track=track, estimates=[stored[f] for f in test] if stored else None)
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
