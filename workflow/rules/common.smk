@@ -81,3 +81,20 @@ def stage_sources(wildcards, input):
         f"sim.sources.extended_vehicle.vehicle={extended}",
         f"sim.sources.extended_vehicle.estimates.extended.path={extended}",
     ]
+
+
+def overview_figures():
+    """(png, caption) for the overview page; directories are the rules' outputs, the files inside them."""
+    out = []
+    for s in SETS:
+        out += [(f"results/diagnosis/{s}/all/figures/residual_vs_effects.png",
+                 f"Diagnosis, {s}: held-out residual force and torque of the nominal model (grey) and what "
+                 "the named effects explain (red)"),
+                (f"results/diagnosis/{s}/all/figures/replay_drift.png",
+                 f"Diagnosis, {s}: open-loop replay drift of the nominal and the extended model"),
+                (f"results/evaluation/{s}/held_out/figures/rollout_mae.png",
+                 f"Rollout, {s}: MAE against the horizon h per model on the held-out flights")]
+    out += [("results/figures/sim_tracking.png", "Simulation (thesis Chapter 5): the Bezier trajectory flown by "
+             "the nominal, the compensated and the oracle controller"),
+            ("results/figures/sim_rmse.png", "Simulation: tracking RMSE per controller and residual model")]
+    return out
