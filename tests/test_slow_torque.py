@@ -77,7 +77,7 @@ def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(hidden_ine
     doc, res = run_diagnosis([tmp / "s" / "flight.csv"], tmp / "s" / "vehicle.yaml", tmp / "d",
                              log=lambda m: None, return_result=True, figures=False)
     fp = res["fitprep"]
-    slow = slow_torque(fp, vehicle, fp.y, [], 50, 5, 3.0, 0.05, 200, 0)
+    slow = slow_torque(fp, vehicle, fp.y, 50, 5, 3.0, 0.05, 200, 0)
     roll, pitch, yaw = slow["axes"]
     for o in (roll, pitch):
         assert o["named"] and o["estimate"] == pytest.approx(0.0028, abs=3 * o["stderr"]), o

@@ -165,20 +165,9 @@ def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
     """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``."""
     from . import tracking
 
-    H, models = doc["horizon"], doc["models"]
-    base = models.get("rate_frozen", {})
-    metrics = {}
-    for model, block in models.items():
-        for q, d in block.items():
-            x = d["mae"][-1] if d.get("mae") else None
-            ref = base.get(q, {}).get("mae", [None])[-1] if base else None
-            if x is not None:
-                metrics[f"{model}.{q}_at_{H}"] = x
-                if ref:
-                    metrics[f"{model}.{q}_ratio"] = x / ref
     with tracking.run("evaluate", name, doc["config"], inputs=inputs) as run:
-        run.metrics(metrics)
-        run.tags({"qr.models": ",".join(models)})
+        run.metrics(rollout.horizon_metrics(doc["models"], doc["horizon"], ratios=True))
+        run.tags({"qr.models": ",".join(doc["models"])})
         for p in ("evaluation.json", "report.md"):
             if (Path(outdir) / p).exists():
                 run.artifact(Path(outdir) / p)

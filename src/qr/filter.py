@@ -69,10 +69,9 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     with atomic_path(out, suffix=".parquet") as tmp:
         states.to_parquet(tmp, index=False)
     if crossfit_out is not None:
-        from .diagnose import prepare_flight
         from .diagnose.crossfit import segment_estimates, write_segment_estimates
 
-        table, _ = segment_estimates(flight, vehicle, cfg, report, prepare_flight)
+        table, _ = segment_estimates(flight, vehicle, cfg, report)
         write_segment_estimates(table, crossfit_out, cfg, report, vehicle)
     write_json(nis_out, report)
     if track:

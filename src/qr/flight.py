@@ -25,7 +25,9 @@ POSITION = ["px", "py", "pz"]
 QUATERNION = ["qw", "qx", "qy", "qz"]
 ROTORS = ["u1", "u2", "u3", "u4"]
 REQUIRED = ["t", *POSITION, *QUATERNION, *ROTORS]
-OPTIONAL = ["ax", "ay", "az", "gx", "gy", "gz", "vbat"]
+ACCEL = ["ax", "ay", "az"]  # accelerometer: specific force, body frame, m/s²
+GYRO = ["gx", "gy", "gz"]  # gyro: body rate, rad/s
+OPTIONAL = [*ACCEL, *GYRO, "vbat"]
 QUAT_NORM_TOL = 0.05  # |‖q‖ - 1| above this is not a rounding error
 HOVER_RATIO_LIMITS = (1 / 3, 3.0)
 

@@ -202,6 +202,20 @@ def summary(sums: np.ndarray, counts: np.ndarray) -> dict:
     return out
 
 
+def horizon_metrics(models: dict, H: int, prefix: str = "", ratios: bool = False) -> dict:
+    """MLflow metrics of :func:`summary` blocks: each model's MAE at ``H`` per quantity
+    (``{prefix}{model}.{q}_at_{H}``) and, with ``ratios``, its ratio to ``rate_frozen`` (``..._ratio``)."""
+    out = {}
+    for model, block in models.items():
+        for q in QUANTITIES:
+            x, ref = at(block, H, q), at(models["rate_frozen"], H, q) if "rate_frozen" in models else None
+            if x is not None:
+                out[f"{prefix}{model}.{q}_at_{H}"] = x
+                if ratios and ref:
+                    out[f"{prefix}{model}.{q}_ratio"] = x / ref
+    return out
+
+
 def at(block: dict, h: int, q: str):
     """MAE of quantity ``q`` at step ``h`` (1-based) from a :func:`summary` block (None if absent)."""
     m = block[q]["mae"]

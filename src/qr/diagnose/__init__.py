@@ -221,19 +221,15 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
         run.metrics({**(metrics or {}), "effects_named": len(doc["effects"]),
                      "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
                      "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"],
-                     **_rollout_metrics(doc.get("rollout") or {})})
+                     **_rollout_metrics(doc.get("rollout"))})
         run.tags({"qr.effects": ",".join(e["name"] for e in doc["effects"]) or "none"})
         for p in ("diagnosis.json", "report.md", "extended_vehicle.yaml"):
             if (outdir / p).exists():
                 run.artifact(outdir / p)
 
 
-def _rollout_metrics(ro: dict) -> dict:
-    """MAE at the horizon of each model and quantity (``rollout.extended.R_at_50``), where present."""
-    out = {}
-    for model, block in (ro.get("models") or {}).items():
-        for q, d in block.items():
-            x = d["mae"][-1] if d.get("mae") else None
-            if x is not None:
-                out[f"rollout.{model}.{q}_at_{ro['horizon']}"] = x
-    return out
+def _rollout_metrics(ro: dict | None) -> dict:
+    """``rollout.<model>.<q>_at_<H>`` of the diagnosis's rollout block (qr.rollout.horizon_metrics)."""
+    from ..rollout import horizon_metrics
+
+    return horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.") if ro and ro.get("models") else {}

@@ -15,10 +15,9 @@ import numpy as np
 import pandas as pd
 
 from ..dynamics import residuals
-from ..flight import on_stamps
+from ..flight import ACCEL, on_stamps
 from ..states import ROTORS, signals
 
-ACCEL = ["ax", "ay", "az"]  # flight-log columns (specific force, body, m/s²), not the state table's
 
 
 def labels(st: pd.DataFrame, meas: pd.DataFrame, vehicle) -> tuple[np.ndarray, np.ndarray]:

@@ -16,7 +16,7 @@ import yaml
 
 from ..atomic import atomic_dir
 from ..report.tables import write_table
-from ..vehicle import load_vehicle, save_vehicle
+from ..vehicle import load_vehicle, save_vehicle, vehicle_from_dict
 from . import run_diagnosis, track_diagnosis
 
 
@@ -61,14 +61,9 @@ def carry_over(extended_vehicle, base_vehicle, out) -> None:
     base = load_vehicle(base_vehicle)
     ext["mass"] = base.mass
     ext["name"] = f"{base.name} (effects carried over from {ext.get('name', 'the no-payload diagnosis')})"
-    save_vehicle(load_vehicle_dict(ext), out,
+    save_vehicle(vehicle_from_dict(ext), out,
                  header=f"{base.name}: mass from {Path(base_vehicle).name}, effects from {extended_vehicle}")
 
-
-def load_vehicle_dict(raw: dict):
-    from ..vehicle import vehicle_from_dict
-
-    return vehicle_from_dict(raw)
 
 
 def summary(set_dirs: dict, table) -> pd.DataFrame:

@@ -358,7 +358,7 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     if cfg.slow_torque_horizon and slow_mod.EFFECT in candidates and slow_mod.EFFECT not in named:
         step("slow torque balance")
         resid = fitprep.y - extended_prediction(fitprep, vehicle, named, theta, None, force_only)
-        slow = slow_mod.slow_torque(fitprep, vehicle, resid, named, cfg.slow_torque_horizon, cfg.selection.folds,
+        slow = slow_mod.slow_torque(fitprep, vehicle, resid, cfg.slow_torque_horizon, cfg.selection.folds,
                                     cfg.selection.t_name, cfg.slow_torque_min_gain, cfg.selection.bootstrap, seed)
     fixed = {}  # effects whose parameters come from outside the one-step fit
     if slow and slow["named"]:

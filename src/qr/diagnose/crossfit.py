@@ -92,13 +92,14 @@ def key(filter_cfg: dict, report: dict, vehicle) -> str:
                       sort_keys=True, default=str)
 
 
-def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None, prepare,
+def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None,
                       min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
-    (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used.
-    ``prepare``: :func:`qr.diagnose.prepare_flight` (the one recipe; the longest segment first, where a
-    tuning filter is tuned)."""
+    (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
+    diagnosis's own recipe (:func:`qr.diagnose.prepare_flight`), the longest segment first, where a
+    tuning filter is tuned."""
     from ..segments import flight_segments
+    from . import prepare_flight as prepare
 
     tables = []
     for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):

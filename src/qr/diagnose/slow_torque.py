@@ -32,11 +32,9 @@ from ..identification.bootstrap import block_counts
 
 EFFECT = "inertia_error"
 AXIS_NAMES = ("roll", "pitch", "yaw")
-# The yaw entry is never tested (above); a named effect that scales a roll/pitch axis's rotor-map torque alone
-# would make that axis's J entry the same term too (none in the catalog today).
-YAW = (2, "on the yaw axis the balance fixes only C_Q / J_zz, the term of yaw_torque_gain: not an inertia it "
-          "can tell apart")
-SAME_TERM: dict[str, tuple[int, ...]] = {}
+# the yaw entry is never tested (above): reported with this reason
+NOT_TESTED = {2: "on the yaw axis the balance fixes only C_Q / J_zz, the term of yaw_torque_gain: not an inertia "
+                 "it can tell apart"}
 
 
 def window_sums(x: np.ndarray, group: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
@@ -83,7 +81,7 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
                  t_name: float, min_gain: float, n_boot: int, seed: int, skip: dict | None = None) -> list[dict]:
     """Per axis: the slope of the summed residual ``y`` (n, 3) on the summed regressor ``x`` (n, 3), its
     cross-validated gain, block-bootstrap s.e. and whether it passes the rule; an axis in ``skip``
-    (axis: the named effect it is the same term as) is reported, not tested."""
+    (axis: why) is reported, not tested."""
     counts = block_counts(n_blocks, n_boot, seed)
     out = []
     for a in range(3):
@@ -111,13 +109,10 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
     return out
 
 
-def slow_torque(prep, vehicle, residual: np.ndarray, named: list[str], horizon: int, folds: int, t_name: float,
+def slow_torque(prep, vehicle, residual: np.ndarray, horizon: int, folds: int, t_name: float,
                 min_gain: float, n_boot: int, seed: int) -> dict:
     """The rule on the training rows of ``prep`` (cross-fitted: the regressor from the other half-sample
-    filter), given ``residual`` (N, 6) left by the ``named`` effects on every row."""
-    skip = {a: f"the same term as the named {e} on this axis (only their ratio is identified)"
-            for e in named for a in SAME_TERM.get(e, ())}
-    skip[YAW[0]] = YAW[1]
+    filter), given ``residual`` (N, 6) left by the named effects on every row."""
     tr = np.flatnonzero(prep.train)
     half = (tr >= prep.pair_offset).astype(int) if prep.pair_offset else np.zeros(tr.size, dtype=int)
     # a window never spans two blocks, segments or cross-fitting halves
@@ -129,7 +124,7 @@ def slow_torque(prep, vehicle, residual: np.ndarray, named: list[str], horizon: 
     n_blocks = int(prep.block[tr].max()) + 1 if tr.size else 0
     lo, hi = plausible_bounds(EFFECT, vehicle)
     axes = slow_inertia(sums[:, :3], sums[:, 3:], block, n_blocks, (lo, hi), folds, t_name, min_gain, n_boot, seed,
-                        skip) \
+                        NOT_TESTED) \
         if len(block) else []
     return {"horizon": int(horizon), "windows": int(len(block)), "axes": axes,
             "named": any(a["named"] for a in axes)}

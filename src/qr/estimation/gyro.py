@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-COLUMNS = ["gx", "gy", "gz"]
+from ..flight import GYRO as COLUMNS
+
 MIN_SAMPLES = 20
 
 

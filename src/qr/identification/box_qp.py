@@ -80,7 +80,7 @@ def box_qp_many(G: np.ndarray, h: np.ndarray, lb: np.ndarray, ub: np.ndarray, x0
     out = np.empty_like(h)
     ok = _box_qp_many(G, h, lb, ub, np.ascontiguousarray(x0, float), out)
     for k in np.flatnonzero(~ok):
-        out[k] = box_qp(G[k], h[k], lb[k], ub[k], x0[k])
+        out[k] = _bvls(G[k], h[k], lb[k], ub[k])
     return out
 
 
@@ -91,8 +91,11 @@ def box_qp(G: np.ndarray, h: np.ndarray, lb: np.ndarray, ub: np.ndarray, x0: np.
     lb = np.broadcast_to(np.asarray(lb, float), h.shape).copy()
     ub = np.broadcast_to(np.asarray(ub, float), h.shape).copy()
     x, ok = _box_qp(G, h, lb, ub, np.zeros_like(h) if x0 is None else np.asarray(x0, float).copy())
-    if ok:
-        return x
+    return x if ok else _bvls(G, h, lb, ub)
+
+
+def _bvls(G, h, lb, ub) -> np.ndarray:
+    """scipy's BVLS on the same quadratic: min ||Lᵀx − L⁻¹h||² with G = L Lᵀ."""
     from scipy.linalg import cho_factor, solve_triangular
     from scipy.optimize import lsq_linear
 
