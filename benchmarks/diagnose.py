@@ -18,7 +18,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("QR_TRACKING", "off")
 
 from qr.config import vehicle_path  # noqa: E402
-from qr.diagnose import run_diagnosis  # noqa: E402
+from qr.stages.diagnose import run_diagnosis  # noqa: E402
 from qr.effects import parse_effect_spec  # noqa: E402
 from qr.sim.synth import SynthConfig, write_synth  # noqa: E402
 from qr.vehicle import load_vehicle  # noqa: E402

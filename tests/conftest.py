@@ -3,6 +3,7 @@ import signal
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,3 +55,15 @@ def run_cli(args, capsys):
 
 def rng(seed=0):
     return np.random.default_rng(seed)
+
+
+def small_flight(n=200, seed=0, yaw_amplitude=0.5):
+    """A legal canonical flight of ``n`` samples at 100 Hz (the Hummingbird's hover rotor speed)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    yaw = yaw_amplitude * np.sin(t)
+    df = pd.DataFrame({"t": t, "px": np.sin(t), "py": np.cos(t), "pz": 1 + 0.1 * t,
+                       "qw": np.cos(yaw / 2), "qx": 0.0, "qy": 0.0, "qz": np.sin(yaw / 2)})
+    for i in range(1, 5):
+        df[f"u{i}"] = 5872.0 + rng.normal(0, 20, n)
+    return df

@@ -17,9 +17,9 @@ commands:
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
   evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
-  filter     Kalman filters / smoother (Hydra overrides; = python -m qr.filter)
-  learn      train and test residual models, -m for a sweep (Hydra; = python -m qr.train)
-  simulate   closed-loop study and stability analysis (Hydra; = python -m qr.simulate)
+  filter     Kalman filters / smoother (Hydra overrides)
+  learn      train and test residual models, -m for a sweep (Hydra overrides)
+  simulate   closed-loop study and stability analysis (Hydra overrides)
 
 examples:
   qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
@@ -37,8 +37,9 @@ stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a swe
   qr learn      train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
       qr learn -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
   qr simulate   closed-loop tracking study and stability analysis (thesis Chapter 5)
-      qr simulate sim.task=stability
-  (python -m qr.filter / qr.train / qr.simulate take the same arguments)
+      qr simulate simulate.task=stability
+  (python -m qr.<stage> ARGS = qr <stage> ARGS for ingest, filter, learn, diagnose, simulate, evaluate;
+   python -m qr.train = qr learn)
 
 the whole workflow (Snakefile; docs/workflow.md):
   snakemake --cores 2                                          every stage, resumable after a kill
@@ -74,7 +75,7 @@ def _parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 "
                               "--rate 100 --seed 1 --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --out DIR\n"
-                              "effects: see ../shared/spec/diagnosis.md (qr.effects.CATALOG)")
+                              "effects: see docs/spec/diagnosis.md (qr.effects.CATALOG)")
     s.add_argument("--vehicle", required=True, help="NOMINAL vehicle YAML (an extended one adds its effects)")
     s.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
     s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
@@ -103,12 +104,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="CSV (a Markdown twin is written beside it); never an existing file")
     s.add_argument("--force", action="store_true", help="replace existing --out files")
 
-    _flights_command(sub, "diagnose", "name what the nominal model gets wrong (../shared/spec/diagnosis.md)",
+    _flights_command(sub, "diagnose", "name what the nominal model gets wrong (docs/spec/diagnosis.md)",
                      "examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
                      "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
                      "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml",
                      vehicle=dict(help="vehicle YAML (nominal, or an extended one to build on)"))
-    _flights_command(sub, "evaluate", "multi-step rollout of vehicle models (../shared/spec/evaluate.md)",
+    _flights_command(sub, "evaluate", "multi-step rollout of vehicle models (docs/spec/evaluate.md)",
                      "examples:\n  qr evaluate flight.csv --vehicle v.yaml --vehicle diag/extended_vehicle.yaml "
                      "--out ev\n  qr evaluate a.csv b.csv --vehicle v.yaml --out ev evaluate.horizon=100\n"
                      "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
@@ -121,9 +122,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 # qr <stage> [HYDRA ARGS]: the stage's own Hydra entry point (overrides, -m sweeps, --help, --cfg job)
-HYDRA_STAGES = {"filter": ("qr.filter", "Kalman filters / smoother on one flight (Hydra overrides)"),
-                "learn": ("qr.train", "train and test residual models; -m: a sweep (Hydra overrides)"),
-                "simulate": ("qr.simulate", "closed-loop study and stability analysis (Hydra overrides)")}
+HYDRA_STAGES = {"filter": ("qr.stages.filter", "Kalman filters / smoother on one flight (Hydra overrides)"),
+                "learn": ("qr.stages.learn", "train and test residual models; -m: a sweep (Hydra overrides)"),
+                "simulate": ("qr.stages.simulate", "closed-loop study and stability analysis (Hydra overrides)")}
 
 
 def _cmd_hydra_stage(a) -> None:
@@ -154,17 +155,9 @@ FORCE_HELP = "write into a non-empty folder that qr did not write, beside its fi
 
 
 def _cmd_ingest(a):
-    from .outputs import check_out_file
+    from .stages.ingest import ingest_file
 
-    check_out_file(a.out, inputs=[a.src, a.vehicle], force=a.force)
-    if Path(a.out).suffix not in (".csv", ".parquet"):
-        raise QrInputError(a.out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
-                           "*.parquet")
-    from .ingest import ingest
-    from .vehicle import load_vehicle
-
-    vehicle = load_vehicle(a.vehicle)
-    df = ingest(a.src, vehicle, a.out, a.format)
+    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
 
 
@@ -218,24 +211,9 @@ def _cmd_synth(a):
 
 
 def _cmd_summary(a):
-    import pandas as pd
+    from .stages.ingest import summarise_files
 
-    from .outputs import check_out_file
-
-    for out in (a.out, Path(a.out).with_suffix(".md")):
-        check_out_file(out, inputs=[*a.flights, a.vehicle], force=a.force)
-
-    from .atomic import atomic_path, write_text
-    from .flight import read_flight
-    from .summary import flight_summary
-    from .vehicle import load_vehicle
-
-    vehicle = load_vehicle(a.vehicle)
-    rows = [flight_summary(read_flight(f), vehicle, Path(f).stem) for f in a.flights]
-    table = pd.DataFrame(rows)
-    with atomic_path(a.out) as tmp:
-        table.to_csv(tmp, index=False, float_format="%.6g")
-    write_text(Path(a.out).with_suffix(".md"), table.to_markdown(index=False, floatfmt=".4g") + "\n")
+    summarise_files(a.flights, a.vehicle, a.out, force=a.force)
 
 
 def _flights_and_overrides(a, command: str) -> tuple[list[str], list[str]]:
@@ -247,14 +225,14 @@ def _flights_and_overrides(a, command: str) -> tuple[list[str], list[str]]:
 
 
 def _cmd_diagnose(a):
-    from .diagnose import run_diagnosis
+    from .stages.diagnose import run_diagnosis
 
     flights, overrides = _flights_and_overrides(a, "diagnose")
     run_diagnosis(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
 def _cmd_evaluate(a):
-    from .evaluate import run_evaluation
+    from .stages.evaluate import run_evaluation
 
     flights, overrides = _flights_and_overrides(a, "evaluate")
     run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
@@ -325,6 +303,11 @@ def _interrupt_in(e: BaseException):
         seen.add(id(e))
         e = e.__cause__ or e.__context__
     return None
+
+
+def run_as(command: str) -> None:
+    """``python -m qr.<stage> ARGS``: exit with ``qr <stage> ARGS``'s status."""
+    sys.exit(main([command, *sys.argv[1:]]))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Hydra configuration: one tree in ``conf/`` (``config.yaml`` + one group per stage).
 
-Stage entry points use ``@hydra.main(config_path=CONF_DIR, config_name="config")``;
-library code and ``qr diagnose`` compose the same tree with overrides.
+The Hydra stages (``qr filter | learn | simulate``) run through :func:`hydra_app`; library code and
+``qr diagnose`` / ``qr evaluate`` compose the same tree with overrides.
 """
 
 from __future__ import annotations
@@ -62,3 +62,27 @@ def compose_stage(overrides, stage: str, example: str):
         raise QrInputError("overrides", str(e).strip().splitlines()[0],
                            f"use KEY=VALUE for keys in conf/ (e.g. {example}, filter=auto)") from None
     return cfg
+
+
+def hydra_app(stage: str, task) -> None:
+    """Run ``task(cfg)`` as stage ``stage``'s Hydra app (overrides, ``-m`` sweeps, ``--help``, ``--cfg``).
+
+    A user mistake (:class:`qr.errors.QrInputError`) is one line and exit status 2, as everywhere in
+    ``qr``; Hydra would print a traceback.  ``functools.wraps`` keeps ``task``'s module, from which
+    Hydra names the job (the stage: ``learn``'s sweep callback acts only on its own multiruns).
+    """
+    import sys
+
+    import hydra
+
+    from .errors import EXIT_BAD_INPUT, QrInputError
+
+    @functools.wraps(task)
+    def entry(cfg):
+        try:
+            return task(cfg)
+        except QrInputError as e:
+            print(f"qr {stage}: error: {e}", file=sys.stderr)
+            sys.exit(EXIT_BAD_INPUT)
+
+    hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

@@ -1,4 +1,4 @@
-"""The effect catalog of ``../shared/spec/diagnosis.md``: one entry per effect.
+"""The effect catalog of ``docs/spec/diagnosis.md``: one entry per effect.
 
 Every catalog term is linear in its parameters (gains through ``gain - 1``), so
 each effect is defined by its *design*: an array ``(N, 6, n_params)`` whose

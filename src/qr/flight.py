@@ -1,4 +1,4 @@
-"""The canonical flight log (``../shared/spec/flight-log.md``): read, validate, write.
+"""The canonical flight log (``docs/spec/flight-log.md``): read, validate, write.
 
 A flight is a ``pandas.DataFrame`` with the spec's columns in SI units (rotor
 speeds in the vehicle's ``rotor_speed_unit``); ``NaN`` marks a dropout.  CSV is
@@ -91,7 +91,7 @@ def _text(path: Path, data: bytes) -> str:
                          "extract or convert it to the canonical CSV (qr ingest reads the Crazyflie uSD logs)")
     if b"\x00" in data[:65536]:
         raise _error(path, "is a binary file, not a CSV or Parquet flight",
-                     "give the canonical CSV of ../shared/spec/flight-log.md (or a Parquet file)")
+                     "give the canonical CSV of docs/spec/flight-log.md (or a Parquet file)")
     try:
         return data.decode("utf-8-sig")
     except UnicodeDecodeError as e:
@@ -118,7 +118,7 @@ def _check_delimiter(path: Path, header: list[str], text: str):
         cells = [c.strip() for c in (line.split() if d == " " else line.split(d))]
         if sum(c in REQUIRED for c in cells) > len(REQUIRED) // 2:
             raise _error(path, f"the cells are separated by {name}, not commas",
-                         "write a comma-separated file (../shared/spec/flight-log.md), "
+                         "write a comma-separated file (docs/spec/flight-log.md), "
                          "e.g. pandas df.to_csv(path, index=False)")
 
 
@@ -184,7 +184,7 @@ def _check_columns(path, cols):
             close = difflib.get_close_matches(m, [c for c in cols if c not in REQUIRED], n=1, cutoff=0.5)
             hints.append(f"'{m}'" + (f" (found {close[0]!r}: misspelled?)" if close else ""))
         raise _error(path, f"missing column(s) {', '.join(hints)}",
-                     f"the header must contain {', '.join(REQUIRED)} (../shared/spec/flight-log.md)")
+                     f"the header must contain {', '.join(REQUIRED)} (docs/spec/flight-log.md)")
 
 
 def validate_flight(df: pd.DataFrame, path=None, vehicle=None) -> pd.DataFrame:

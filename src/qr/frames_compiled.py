@@ -2,7 +2,7 @@
 
 Same conventions as ``qr.frames`` (quaternion scalar first, body → world; rotation vectors as scipy's
 ``from_rotvec`` / ``as_rotvec``): one home for the compiled quaternion algebra, checked against the
-scipy versions in tests/test_frames.py.
+scipy versions in tests/core/test_frames.py.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Multi-step open-loop rollout: the field's yardstick (../shared/spec/evaluate.md).
+"""Multi-step open-loop rollout: the field's yardstick (docs/spec/evaluate.md).
 
 From the estimated state at every start sample ``i`` (position and velocity of the
 tracked point in the world frame, attitude, body rate), a model driven by the
@@ -18,15 +18,19 @@ nanodrone-sysid-benchmark's physics baseline).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numba as nb
 import numpy as np
 import pandas as pd
 
+from .allowed import check_fields, check_known, setting
 from .frames_compiled import cross, quat_angle, quat_to_R
 from .sim.plant import N_P, P_DELAY, P_MARKER, rigid_body_deriv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
+DEFAULTS_FILE = "conf/evaluate/default.yaml"
 QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
 MODEL, HOLD, RATE_FROZEN = 0, 1, 2
 
@@ -220,3 +224,46 @@ def at(block: dict, h: int, q: str):
     """MAE of quantity ``q`` at step ``h`` (1-based) from a :func:`summary` block (None if absent)."""
     m = block[q]["mae"]
     return m[h - 1] if 0 < h <= len(m) else None
+
+
+# ---- settings (config group `evaluate`), the scored pieces of a segment, the Markdown table ----
+
+@dataclass
+class EvaluateConfig:
+    KEY: ClassVar[str] = "evaluate"
+    horizon: int = setting(50, "integer", ge=1, le=100_000)
+    max_input_gap: int = setting(2, "integer", ge=0)
+    trim_s: float = setting(0.5, ge=0)
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "EvaluateConfig":
+        d = {k: v for k, v in dict(d or {}).items() if k != "filter"}  # (filter: read by _compose)
+        check_known(cls.KEY, d, cls, DEFAULTS_FILE)
+        return cls(**d)
+
+
+def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:
+    """A segment's estimate, its measured rows on the same stamps, and the starts to score (trimmed)."""
+    from .flight import on_stamps
+
+    t = states["t"].to_numpy(float)
+    meas = on_stamps(rows, t)
+    keep = (t >= t[0] + trim_s) & (t <= t[-1] - trim_s)
+    return states, meas, keep
+
+
+def table(models: dict, H: int) -> list[str]:
+    """Markdown rows: each model's MAE at h = 1, 10, H and SimErr, per quantity."""
+    hs = [h for h in (1, 10, H) if h <= H]
+    hs = sorted(set(hs))
+    head = ["model"] + [f"{q}@{h}" for q in QUANTITIES for h in hs] + [f"SimErr {q}" for q in QUANTITIES]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" + "---:|" * (len(head) - 1)]
+    fmt = lambda x: "–" if x is None else f"{x:.4g}"  # noqa: E731
+    for name, block in models.items():
+        cells = [fmt(at(block, h, q)) for q in QUANTITIES for h in hs]
+        cells += [fmt(block[q]["simerr"]) for q in QUANTITIES]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines

@@ -145,7 +145,7 @@ DESCRIPTIONS = {
                 "RMSE, replay and rollout.",
     "simulate": "Closed-loop tracking study (LQR + PD on a Bezier trajectory), thesis Chapter 5: position RMSE "
                 "per controller and residual model.",
-    "evaluate": "Multi-step rollout on held-out flights (../shared/spec/evaluate.md): MAE at the horizon per "
+    "evaluate": "Multi-step rollout on held-out flights (docs/spec/evaluate.md): MAE at the horizon per "
                 "model and its ratio to the benchmark's physics baseline (rate_frozen).",
     "stability": "Eq. 5.15 stability analysis of the closed loop with each learned linear model.",
 }
@@ -200,6 +200,23 @@ class Run:
 
     def artifact(self, path: str | Path, subdir: str | None = None) -> None:
         _retry(self.client.log_artifact, self.id, str(path), subdir)
+
+    def model(self, flavor: str, obj, X_example, y_example, requirements: list[str],
+              name: str = "model", **save_options) -> None:
+        """A model in MLflow's ``flavor`` (``pytorch`` / ``sklearn``) with its signature and an input
+        example, under artifact path ``name`` (``mlflow.pyfunc.load_model("runs:/<id>/model")``).
+        Saved locally and logged as the run's artifacts: qr's runs are client runs, not fluent ones."""
+        import importlib
+        import tempfile
+
+        from mlflow.models import infer_signature
+
+        save = importlib.import_module(f"mlflow.{flavor}").save_model
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / name
+            save(obj, str(path), signature=infer_signature(X_example, y_example), input_example=X_example,
+                 pip_requirements=requirements, **save_options)
+            _retry(self.client.log_artifacts, self.id, str(path), name)
 
     def dataset(self, path: str | Path, table, context: str = "training") -> None:
         """The data set as the run's input (the UI's "Datasets used"): name, source, schema and qr's
@@ -330,6 +347,9 @@ class _NullRun(Run):
         pass
 
     def artifact(self, path, subdir=None):
+        pass
+
+    def model(self, flavor, obj, X_example, y_example, requirements, name="model", **save_options):
         pass
 
     def dataset(self, path, table, context="training"):

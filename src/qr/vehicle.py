@@ -118,7 +118,7 @@ def _layout_entry(path, i, r):
 def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
     if not isinstance(raw, dict):
         raise QrInputError(path, "vehicle file is not a YAML mapping",
-                           "write 'key: value' lines as in ../shared/spec/flight-log.md")
+                           "write 'key: value' lines as in docs/spec/flight-log.md")
     missing = [k for k in REQUIRED if k not in raw]
     if raw.get("layout") == "plus" and "arm_length" not in raw:
         missing.append("arm_length")
@@ -129,7 +129,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
             close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
             hints.append(f"'{k}'" + (f" (found {close[0]!r})" if close else ""))
         raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
-                           "add them as in ../shared/spec/flight-log.md")
+                           "add them as in docs/spec/flight-log.md")
     raw = dict(raw)
     mass = _number(path, raw, "mass")
     ct = _number(path, raw, "thrust_coeff")
@@ -230,7 +230,7 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
     except RecursionError:  # anchors nested thousands deep
         raise QrInputError(path, "vehicle file nests too deep", "write a flat 'key: value' file") from None
     if raw is None:
-        raise QrInputError(path, "vehicle file is empty", "write the keys of ../shared/spec/flight-log.md")
+        raise QrInputError(path, "vehicle file is empty", "write the keys of docs/spec/flight-log.md")
     if isinstance(raw, dict) and "extends" in raw:
         base_name = raw["extends"]
         if not isinstance(base_name, str) or not base_name.strip():
@@ -248,7 +248,7 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
         base = _read_yaml(base_path, tuple(here))
         if not isinstance(base, dict):
             raise QrInputError(base_path, "vehicle file is not a YAML mapping",
-                               "write 'key: value' lines as in ../shared/spec/flight-log.md")
+                               "write 'key: value' lines as in docs/spec/flight-log.md")
         base.update({k: v for k, v in raw.items() if k != "extends"})
         raw = base
     return raw

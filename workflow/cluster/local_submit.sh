@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A stand-in for a cluster's submit command (sbatch, qsub), so that Snakemake's generic-cluster
-# code path (profiles/local-cluster) runs on one machine and in the test suite (tests/test_cluster.py).
+# code path (profiles/local-cluster) runs on one machine and in the test suite (tests/workflow/test_cluster.py).
 #
 #   local_submit.sh JOBSCRIPT   ->  prints a job id; the job runs in the background, in its own
 #                                   session (like a cluster job it outlives the Snakemake that

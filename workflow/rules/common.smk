@@ -73,13 +73,13 @@ def stage_sources(wildcards, input):
     """Hydra overrides that switch on the learned-model and extended-vehicle sources."""
     extended = f"{input.diagnosis}/extended_vehicle.yaml"
     return [
-        "sim.sources.learned.enabled=true",
-        f"sim.sources.learned.vehicle={LEARNED_VEHICLE}",
-        f"sim.sources.learned.plant.force.path={input.learned}",
-        f"sim.sources.learned.estimates.learned.path={input.learned}",
-        "sim.sources.extended_vehicle.enabled=true",
-        f"sim.sources.extended_vehicle.vehicle={extended}",
-        f"sim.sources.extended_vehicle.estimates.extended.path={extended}",
+        "simulate.sources.learned.enabled=true",
+        f"simulate.sources.learned.vehicle={LEARNED_VEHICLE}",
+        f"simulate.sources.learned.plant.force.path={input.learned}",
+        f"simulate.sources.learned.estimates.learned.path={input.learned}",
+        "simulate.sources.extended_vehicle.enabled=true",
+        f"simulate.sources.extended_vehicle.vehicle={extended}",
+        f"simulate.sources.extended_vehicle.estimates.extended.path={extended}",
     ]
 
 

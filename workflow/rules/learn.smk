@@ -5,7 +5,7 @@ LEARN_SET = next(iter(SETS))  # the first configured set (brushless by default)
 LEARN_SWEEPS = ["table_4_2", "table_4_3", "gpr_kernels"]
 LEARN_TABLES = ["table_3_1", "table_3_2", "table_4_2", "table_4_3", "gpr_kernels"]
 # Extra Hydra overrides (conf/workflow.yaml, key `learn`): `overrides` for every sweep, `sweeps.<name>` for one
-# (a reduced run picks rows with e.g. `row=4,14`; see conf/workflow_ci.yaml).
+# (a reduced run picks rows with e.g. `learn.row=4,14`; see conf/workflow_ci.yaml).
 LEARN = config.get("learn", {})
 
 
@@ -31,7 +31,7 @@ rule learn_sweep:
     input:
         dataset=f"results/learn/{LEARN_SET}/dataset.parquet",
         sweep="conf/sweep/{sweep}.yaml",
-        configs=["conf/split/by_flight.yaml", "conf/model/ann.yaml", "conf/model/gpr.yaml"],
+        configs=["conf/learn/default.yaml", "conf/split/by_flight.yaml", "conf/model/ann.yaml", "conf/model/gpr.yaml"],
     output:
         "results/learn/{sweep}/runs.csv",
     log:

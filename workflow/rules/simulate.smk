@@ -1,5 +1,5 @@
 # Simulation study (thesis Chapter 5): closed-loop tracking without / with the disturbance model /
-# with the oracle, and the stability analysis of a_b-input models (eq. 5.15).  Config: conf/sim/.
+# with the oracle, and the stability analysis of a_b-input models (eq. 5.15).  Config: conf/simulate/.
 #
 # Besides the thesis's sources, the tracking study flies the two the other stages produce: the
 # best non-leaking learned force model (rule learn_best; the Crazyflie it was trained on) and the
@@ -10,7 +10,7 @@ SIM_OVERRIDES = list(config.get("simulate", {}).get("overrides", []))  # conf/wo
 
 rule simulate:
     input:
-        sim=f"conf/sim/{SIM_CONFIG}.yaml",
+        sim=f"conf/simulate/{SIM_CONFIG}.yaml",
         vehicle="conf/vehicle/asctec_hummingbird.yaml",
         learned=rules.learn_best.output.force,
         diagnosis=expand(rules.diagnose_set.output[0], set=DIAG_FIRST)[0],
@@ -26,7 +26,7 @@ rule simulate:
     benchmark:
         "results/benchmarks/simulation/simulate.tsv"
     params:
-        overrides=lambda wc, input: [f"sim={SIM_CONFIG}", *SIM_OVERRIDES, *stage_sources(wc, input)],
+        overrides=lambda wc, input: [f"simulate={SIM_CONFIG}", *SIM_OVERRIDES, *stage_sources(wc, input)],
     conda:
         "../envs/qr.yaml"
     script:
@@ -35,7 +35,7 @@ rule simulate:
 
 rule stability:
     input:
-        sim=f"conf/sim/{SIM_CONFIG}.yaml",
+        sim=f"conf/simulate/{SIM_CONFIG}.yaml",
         vehicle="conf/vehicle/asctec_hummingbird.yaml",
     output:
         table="results/simulation/stability.csv",
@@ -49,7 +49,7 @@ rule stability:
     benchmark:
         "results/benchmarks/simulation/stability.tsv"
     params:
-        overrides=[f"sim={SIM_CONFIG}", *SIM_OVERRIDES],
+        overrides=[f"simulate={SIM_CONFIG}", *SIM_OVERRIDES],
     conda:
         "../envs/qr.yaml"
     script:

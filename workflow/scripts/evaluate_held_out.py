@@ -1,7 +1,7 @@
 """Snakemake rule `evaluate_held_out`: diagnose the training flights, roll out on the held-out ones."""
 import sys
 
-from qr.evaluate import evaluate_held_out
+from qr.stages.evaluate import evaluate_held_out
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

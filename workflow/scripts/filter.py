@@ -1,7 +1,7 @@
 """Snakemake rule `filter`: one canonical flight -> state table + NIS report (MLflow run: filter_summary)."""
 import sys
 
-from qr.filter import run_with_overrides
+from qr.stages.filter import run_with_overrides
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

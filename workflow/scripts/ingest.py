@@ -1,7 +1,7 @@
 """Snakemake rule `ingest`: one raw log -> canonical Parquet flight."""
 import sys
 
-from qr.ingest import ingest
+from qr.stages.ingest import ingest
 from qr.vehicle import load_vehicle
 
 with open(snakemake.log[0], "w") as log:

@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 
 out = Path(snakemake.output[0]).parent
-cmd = [sys.executable, "-m", "qr.train", "-m", f"sweep={snakemake.wildcards.sweep}",
-       f"dataset={snakemake.input.dataset}", f"out={out}", f"hydra.sweep.dir={out / 'hydra'}",
+cmd = [sys.executable, "-m", "qr.learn", "-m", f"sweep={snakemake.wildcards.sweep}",
+       f"learn.dataset={snakemake.input.dataset}", f"learn.out={out}", f"hydra.sweep.dir={out / 'hydra'}",
        "hydra/launcher=joblib2", f"hydra.launcher.n_jobs={snakemake.threads}", *snakemake.params.overrides]
 env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 with open(snakemake.log[0], "w") as log:

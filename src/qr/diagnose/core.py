@@ -489,7 +489,7 @@ def rollout_all(states_list, measured_list, vehicle, effects, prep: Prepared, ho
     """Multi-step rollout (qr.rollout) of the nominal and the extended model and the references, from the
     held-out starts of every state table (a flight or a gap-free segment of one): the spec's block."""
     from .. import rollout
-    from ..evaluate import pieces
+    from ..rollout import pieces
 
     models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicle), "nominal": (vehicle, list(vehicle.effects)),
               "extended": (vehicle, list(vehicle.effects) + extended_effects(effects))}

@@ -92,18 +92,30 @@ def key(filter_cfg: dict, report: dict, vehicle) -> str:
                       sort_keys=True, default=str)
 
 
+def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
+    """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
+
+    ``report``: the filter stage's report of this flight (its tuned noise values are
+    reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
+    """
+    if report is None:
+        _, report = estimate(flight, vehicle, filter_cfg)
+    matched = matched_settings(filter_cfg, report)
+    st, _ = estimate(flight, vehicle, matched)
+    return add_matched_rotor_signals(st, flight, matched), halves(flight, vehicle, matched), report
+
+
 def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None,
                       min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
-    diagnosis's own recipe (:func:`qr.diagnose.prepare_flight`), the longest segment first, where a
+    diagnosis's own recipe (:func:`prepare_flight`), the longest segment first, where a
     tuning filter is tuned."""
     from ..segments import flight_segments
-    from . import prepare_flight as prepare
 
     tables = []
     for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):
-        st, pair, report = prepare(seg.rows, vehicle, filter_cfg, report)
+        st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
         for part, table in zip(PARTS, (st, *pair)):
             tables.append(table.assign(segment_start=seg.window[0], part=part))
     return pd.concat(tables, ignore_index=True), report

@@ -1,4 +1,4 @@
-"""``diagnosis.json`` (the machine contract of ../shared/spec/diagnosis.md) and ``report.md``."""
+"""``diagnosis.json`` (the machine contract of docs/spec/diagnosis.md) and ``report.md``."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from matplotlib.ticker import MaxNLocator
 
 from ..effects import CATALOG
 from ..report import figures
-from .core import AXES, rms
+from .core import AXES
 
 SCHEMA = "qr.diagnosis/1"
 
@@ -101,7 +101,6 @@ def _clean(step: dict) -> dict:
 
 
 def verdict(res: dict) -> str:
-    nom, noise = np.array(res["nominal_rmse"]), np.array(res["noise_floor_rmse"])
     ratio = res["nominal_loss"]
     if not res["effects"]:
         rem = res.get("remainder", {})
@@ -251,7 +250,7 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
     L.append("")
     ro = doc.get("rollout") or {}
     if ro.get("models"):
-        from ..evaluate import table
+        from ..rollout import table
 
         L.append(f"## Multi-step rollout (held-out part, every start, H = {ro['horizon']} steps; `qr evaluate`)\n")
         L.append("Mean absolute error at step h: p (m), v (m/s), R (rad), w (rad/s); `hold` holds the state, "

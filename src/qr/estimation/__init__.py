@@ -35,7 +35,7 @@ def _inputs(flight: pd.DataFrame, source):
     missing = [c for c in ["t", *P_COLS, *Q_COLS, *U_COLS] if c not in flight.columns]
     if missing:
         raise QrInputError(source, f"flight lacks column(s) {', '.join(missing)}",
-                           "pass a canonical flight (qr.flight.read_flight; ../shared/spec/flight-log.md)")
+                           "pass a canonical flight (qr.flight.read_flight; docs/spec/flight-log.md)")
     t = flight["t"].to_numpy(dtype=float)
     if len(t) < MIN_SAMPLES or not np.all(np.diff(t) > 0):
         raise QrInputError(source, f"t must be strictly increasing with at least {MIN_SAMPLES} samples",

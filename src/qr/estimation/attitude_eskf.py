@@ -35,6 +35,7 @@ from tqdm import tqdm
 from ..frames import quat_multiply, quat_to_rot, rotation, skew
 from . import chain
 from .nis import Innovations
+from .smoother import equilibration
 
 THESIS_Q = 500.0 * np.array([1.0, 0.1, 1.0])  # eq. 4.16a: Q = 500 diag(1, 0.1, 1) on α̈
 THESIS_R = 0.001**2  # eq. 4.16b
@@ -141,7 +142,6 @@ def filter_reference(t, quat_meas, q, r, discretisation="thesis", smooth=False, 
     """
     from filterpy.kalman import KalmanFilter
 
-    from .smoother import rts_eskf
 
     N = len(t)
     valid = np.all(np.isfinite(quat_meas), axis=1)
@@ -199,7 +199,6 @@ def filter_fast(t, quat_meas, q, r, discretisation="thesis", smooth=False, reset
     covariance blocks (N, 2, 3, 3), :class:`Innovations` and the restart flags.
     """
     from . import fast
-    from .smoother import equilibration
 
     valid = np.all(np.isfinite(quat_meas), axis=1)
     quat0, psi0, P0 = initial(quat_meas[int(np.argmax(valid))], r)
@@ -229,3 +228,32 @@ def body_rates(quat, psi, blocks):
     al = np.einsum("nji,nj->ni", R, psi[:, 3:6])
     sd = [np.sqrt(np.einsum("nji,njk,nki->ni", R, blocks[:, b], R)) for b in (0, 1)]
     return w, al, sd[0], sd[1]
+
+
+def rts_eskf(quat, psi, Ps, step, resets):
+    """RTS pass of the attitude ESKF (numpy reference): the linear recursion on the error state, with the
+    mean difference ``x_s,k+1 ⊖ x⁻_k+1`` taken on SO(3) (``log(q⁻⁻¹ ⊗ q_s)``) and the correction
+    injected with ``q ⊗ exp(δθ)``, as in the filter's update (equilibrated as
+    :mod:`qr.estimation.smoother` explains).
+
+    ``quat`` (N, 4), ``psi`` (N, 9) and ``Ps`` (N, 12, 12) are the filter's
+    posteriors; ``step(k)`` returns ``(Φ, Q, q⁻, ψ⁻)`` of the prediction from
+    sample ``k`` to ``k + 1``; where the filter restarted (``resets[k+1]``)
+    the chain is cut.  Returns smoothed ``quat, psi, Ps``.
+    """
+    N = len(quat)
+    d = equilibration(Ps)
+    dd = d[:, None] * d[None, :]
+    quat, psi, Ps = quat.copy(), psi.copy(), Ps.copy()
+    for k in range(N - 2, -1, -1):
+        if resets[k + 1]:
+            continue
+        Phi, Q, q_pred, psi_pred = step(k)
+        Pk = Ps[k] * dd
+        Phi_s = d[:, None] * Phi / d[None, :]
+        pP = Phi_s @ Pk @ Phi_s.T + Q * dd
+        C = Pk @ Phi_s.T @ np.linalg.inv(pP)
+        delta = boxminus(quat[k + 1], psi[k + 1], q_pred, psi_pred) * d
+        quat[k], psi[k] = inject(quat[k], psi[k], (C @ delta) / d)
+        Ps[k] = (Pk + C @ (Ps[k + 1] * dd - pP) @ C.T) / dd
+    return quat, psi, Ps

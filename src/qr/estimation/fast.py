@@ -197,7 +197,7 @@ def chain_smooth(t, X, Ps, q, exact, d):
     """RTS on the equilibrated states ``d * x``; overwrites ``X`` (N, c, m) and ``Ps`` (N, m, m)."""
     N, c, m = X.shape
     dd = np.outer(d, d)
-    co, xk, r = np.empty(m), np.empty(m), np.empty(m)
+    co, r = np.empty(m), np.empty(m)
     T, pP, Pk, K = np.empty((m, m)), np.empty((m, m)), np.empty((m, m)), np.empty((m, m))
     scratch = np.empty((3, m, m))
     for k in range(N - 2, -1, -1):

@@ -28,7 +28,7 @@ DEFAULTS = {
     "motor": {"q": motor_kf.THESIS_Q, "r": motor_kf.THESIS_R},
     "tune": {"enabled": False, "min_corner_hz": 0.05, "grid": 13, "rounds": 2, "max_samples": 60000},
     "nis": {"confidence": 0.95, "burn_in_s": 1.0},
-    "flight": None,  # input, output and vehicle of `python -m qr.filter`; ignored by estimate()
+    "flight": None,  # input, output and vehicle of `qr filter`; ignored by estimate()
     "out": None,
     "vehicle": None,
 }

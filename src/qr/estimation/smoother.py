@@ -5,9 +5,8 @@ the motion by roughly the inverse of its bandwidth, the smoothed ones do not,
 and their errors are smaller.
 
 - Linear filters (position, rotors): ``filterpy.kalman.rts_smoother``.
-- Attitude ESKF: the same recursion on the error state, with the mean
-  difference ``x_s,k+1 ⊖ x⁻_k+1`` taken on SO(3) (``log(q⁻⁻¹ ⊗ q_s)``) and the
-  correction injected with ``q ⊗ exp(δθ)``, as in the filter's update.
+- Attitude ESKF: the same recursion on the error state, beside the filter whose
+  state it shares (:func:`qr.estimation.attitude_eskf.rts_eskf`).
 
 Both work on equilibrated states ``D x`` (:func:`equilibration`, every state
 at unit typical variance): a chain's variances span ~14 orders of magnitude
@@ -39,31 +38,3 @@ def rts_linear(X, Ps, Fs, Qs):
     Qs = [Dm * Q * d[None, :] for Q in Qs] + [np.zeros((n, n))]
     xs, P, _, _ = rts_smoother(X * d, Ps * (d[:, None] * d[None, :]), Fs, Qs)
     return xs / d, P / (d[:, None] * d[None, :])
-
-
-def rts_eskf(quat, psi, Ps, step, resets):
-    """RTS pass of the attitude ESKF (numpy reference).
-
-    ``quat`` (N, 4), ``psi`` (N, 9) and ``Ps`` (N, 12, 12) are the filter's
-    posteriors; ``step(k)`` returns ``(Φ, Q, q⁻, ψ⁻)`` of the prediction from
-    sample ``k`` to ``k + 1``; where the filter restarted (``resets[k+1]``)
-    the chain is cut.  Returns smoothed ``quat, psi, Ps``.
-    """
-    from .attitude_eskf import boxminus, inject
-
-    N = len(quat)
-    d = equilibration(Ps)
-    dd = d[:, None] * d[None, :]
-    quat, psi, Ps = quat.copy(), psi.copy(), Ps.copy()
-    for k in range(N - 2, -1, -1):
-        if resets[k + 1]:
-            continue
-        Phi, Q, q_pred, psi_pred = step(k)
-        Pk = Ps[k] * dd
-        Phi_s = d[:, None] * Phi / d[None, :]
-        pP = Phi_s @ Pk @ Phi_s.T + Q * dd
-        C = Pk @ Phi_s.T @ np.linalg.inv(pP)
-        delta = boxminus(quat[k + 1], psi[k + 1], q_pred, psi_pred) * d
-        quat[k], psi[k] = inject(quat[k], psi[k], (C @ delta) / d)
-        Ps[k] = (Pk + C @ (Ps[k + 1] * dd - pP) @ C.T) / dd
-    return quat, psi, Ps

@@ -3,7 +3,7 @@
 The selection solves tens of thousands of these (p ≤ ~12, one per bootstrap replicate that leaves
 the bounds); scipy's ``lsq_linear`` costs ~0.2 ms a call in Python overhead, this compiled primal
 active-set method a few µs (benchmarks/diagnose.py).  It returns the same minimiser (the problem is
-strictly convex); tests/test_identification.py checks it against ``lsq_linear`` (BVLS).
+strictly convex); tests/diagnose/test_identification.py checks it against ``lsq_linear`` (BVLS).
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..errors import QrInputError
-from ..flight import validate_flight, write_flight
+from ..flight import validate_flight
 from . import cf_usd, csv, future
 
 ADAPTERS = {
@@ -36,8 +36,9 @@ def detect_format(path: Path) -> str:
     return "csv"
 
 
-def ingest(src: str | Path, vehicle, out: str | Path | None = None, fmt: str = "auto") -> pd.DataFrame:
-    """Read ``src`` in ``fmt`` (or detect it), validate against ``vehicle``, write ``out`` atomically."""
+def read_log(src: str | Path, vehicle, fmt: str = "auto") -> pd.DataFrame:
+    """Read ``src`` in ``fmt`` (or detect it) and validate it against ``vehicle`` (the stage that writes
+    it is :mod:`qr.stages.ingest`)."""
     src = Path(src)
     if not src.exists():
         raise QrInputError(src, "log file does not exist", "check the path")
@@ -50,7 +51,4 @@ def ingest(src: str | Path, vehicle, out: str | Path | None = None, fmt: str = "
     if fmt not in ADAPTERS:
         raise QrInputError(src, f"unknown format '{fmt}'", f"use one of auto, {', '.join(ADAPTERS)}")
     df = ADAPTERS[fmt](src)
-    df = validate_flight(df, src, vehicle)
-    if out is not None:
-        write_flight(df, out)
-    return df
+    return validate_flight(df, src, vehicle)

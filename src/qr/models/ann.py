@@ -201,6 +201,21 @@ class ANN(Model):
         b = self.ys.std * (bs - Ws @ (self.xs.mean / self.xs.std)) + self.ys.mean
         return W, b
 
+    def mlflow_flavor(self) -> tuple[str, object]:
+        """A self-contained torch module: input scaling, the net, output scaling (as two affine layers)."""
+        torch = _torch()
+
+        def affine(scale, shift):
+            layer = torch.nn.Linear(len(scale), len(scale)).double()
+            with torch.no_grad():
+                layer.weight.copy_(torch.diag(torch.from_numpy(np.asarray(scale, dtype=float))))
+                layer.bias.copy_(torch.from_numpy(np.asarray(shift, dtype=float)))
+            return layer
+
+        module = torch.nn.Sequential(affine(1 / self.xs.std, -self.xs.mean / self.xs.std),
+                                     *copy.deepcopy(self.net), affine(self.ys.std, self.ys.mean))
+        return "pytorch", module.eval()
+
     def _save_weights(self, path: Path) -> None:
         torch = _torch()
         state = {"state_dict": self.net.state_dict()}

@@ -107,6 +107,11 @@ class Model:
     def _save_weights(self, path: Path) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def mlflow_flavor(self) -> tuple[str, object]:  # pragma: no cover - abstract
+        """``(flavor, object)``: the model as MLflow's ``pytorch`` or ``sklearn`` flavor stores it,
+        predicting what :meth:`predict` predicts, in the same units."""
+        raise NotImplementedError
+
     @classmethod
     def _load(cls, path: Path, doc: dict) -> "Model":  # pragma: no cover - abstract
         raise NotImplementedError

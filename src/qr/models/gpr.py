@@ -96,7 +96,7 @@ def _fast_gpr_class():
 
     The gradient needs ``K^-1``; scikit-learn solves ``n`` right-hand sides with
     the Cholesky factor, we invert from it with LAPACK ``potri`` (about 3x less
-    work).  Value and gradient are the same (``tests/test_models.py``).
+    work).  Value and gradient are the same (``tests/learn/test_models.py``).
     """
     from scipy.linalg.lapack import dpotri
     from sklearn.gaussian_process import GaussianProcessRegressor
@@ -285,6 +285,11 @@ class GPR(Model):
         return [{"beta_0 (intercept)": float(self.b[j]),
                  **{f"beta ({n})": float(w) for n, w in zip(names, self.W[j])}} for j in range(len(self.b))]
 
+    def mlflow_flavor(self) -> tuple[str, object]:
+        """scikit-learn's estimator API around this GP (its linear mean and per-axis posteriors, exact or
+        sparse, are not one scikit-learn object); loading it needs qr installed."""
+        return "sklearn", SklearnGPR(self)
+
     def _save_weights(self, path: Path) -> None:
         np.savez(path / "gpr.npz", Xs=self.Xs, rs=self.rs, theta=self.theta, x_mean=self.xs.mean,
                  x_std=self.xs.std, W=self.W, b=self.b, r_scale=self.r_scale)
@@ -298,3 +303,22 @@ class GPR(Model):
         m._posteriors()
         m.info = doc.get("info", {})
         return m
+
+
+try:
+    from sklearn.base import BaseEstimator, RegressorMixin
+except ImportError:  # pragma: no cover
+    BaseEstimator = RegressorMixin = object
+
+
+class SklearnGPR(RegressorMixin, BaseEstimator):
+    """A fitted :class:`GPR` behind scikit-learn's estimator API (``predict``), for ``mlflow.sklearn``."""
+
+    def __init__(self, model=None):
+        self.model = model
+
+    def fit(self, X, y):
+        raise NotImplementedError("fit with qr.models.fit('gpr', ...); this wraps a fitted GPR")
+
+    def predict(self, X):
+        return self.model.predict(np.asarray(X, dtype=float))

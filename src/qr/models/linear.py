@@ -41,6 +41,16 @@ class Ridge(Model):
         """``(W, b)`` in input units: ``y = W x + b``."""
         return self.W.copy(), self.b.copy()
 
+    def mlflow_flavor(self) -> tuple[str, object]:
+        """scikit-learn's ``LinearRegression`` holding ``W`` and ``b`` (no qr needed to load it)."""
+        from sklearn.linear_model import LinearRegression
+
+        lin = LinearRegression()
+        lin.coef_, lin.intercept_, lin.n_features_in_ = self.W.copy(), self.b.copy(), self.W.shape[1]
+        if self.meta.get("feature_names"):
+            lin.feature_names_in_ = np.asarray(self.meta["feature_names"], dtype=object)
+        return "sklearn", lin
+
     def _save_weights(self, path: Path) -> None:
         np.savez(path / "weights.npz", W=self.W, b=self.b)
 

@@ -1,6 +1,6 @@
 """The learning stage's tables: thesis Tables 3.1, 3.2, 4.2, 4.3 (same columns, our numbers) and the GPR grid.
 
-Inputs are sweep directories written by ``python -m qr.train -m sweep=...``
+Inputs are sweep directories written by ``python -m qr.learn -m sweep=...``
 (``runs/*.json``).  Every ANN table starts with row 0, the nominal model (it
 predicts no residual, so its RMSE is that of the labels on the same test
 samples), and adds to the thesis's columns the RMSE as a share of the nominal

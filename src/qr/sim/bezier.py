@@ -166,10 +166,10 @@ def bezier_trajectory(waypoints=THESIS_WAYPOINTS, tangents=THESIS_TANGENTS, segm
         raise QrInputError("sim.trajectory", f"waypoints {p.shape} and tangents {v.shape} do not match",
                            "give n >= 2 waypoints and n tangents as rows [x, y, z]")
     if yaw not in YAW_MODES:
-        raise QrInputError("sim.trajectory.yaw", f"unknown yaw mode {yaw!r}", f"use one of {list(YAW_MODES)}")
+        raise QrInputError("simulate.trajectory.yaw", f"unknown yaw mode {yaw!r}", f"use one of {list(YAW_MODES)}")
     T = np.broadcast_to(np.asarray(segment_duration_s, dtype=float), (len(p) - 1,)).copy()
     if not np.all(T > 0):
-        raise QrInputError("sim.trajectory.segment_duration_s", f"segment durations {T} must be positive",
+        raise QrInputError("simulate.trajectory.segment_duration_s", f"segment durations {T} must be positive",
                            "give a positive time per segment (the time scaling)")
     ctrl = control_points(p + np.asarray(origin, dtype=float), v)
     return BezierTrajectory(np.ascontiguousarray(ctrl), T, yaw, float(yaw0))

@@ -164,7 +164,7 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
     from pathlib import Path
 
     from ..config import vehicle_path
-    from ..diagnose import run_diagnosis
+    from ..stages.diagnose import run_diagnosis
     from ..vehicle import load_vehicle
     from .synth import SynthConfig, write_synth
     from .trajectory import TrajectoryConfig

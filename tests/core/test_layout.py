@@ -1,0 +1,82 @@
+"""The house as the README's code map draws it: each stage found by its name, no import cycles.
+
+Issue 14's done-when: a newcomer finds each stage's module, command, config group, rule file, tests
+and docs page by the stage's name alone; no module imports another that imports it back; the code
+map names every module.
+"""
+
+import ast
+import importlib
+import re
+
+import pytest
+
+from conftest import ROOT
+
+STAGES = ("ingest", "filter", "learn", "diagnose", "simulate", "evaluate")
+SRC = ROOT / "src" / "qr"
+
+
+@pytest.mark.parametrize("stage", STAGES)
+def test_each_stage_is_found_by_its_name(stage):
+    module = importlib.import_module(f"qr.stages.{stage}")
+    assert module.__doc__ and stage in module.__doc__.split("\n")[0].lower()
+    # python -m qr.<stage>: a module of that name or a package with __main__
+    assert (SRC / f"{stage}.py").exists() or (SRC / stage / "__main__.py").exists()
+    group = {"ingest": "data"}.get(stage, stage)  # ingest's settings: the data sets (and vehicles)
+    assert list((ROOT / "conf" / group).glob("*.yaml")), f"no config group conf/{group}/"
+    assert (ROOT / "workflow" / "rules" / f"{stage}.smk").exists()
+    assert list((ROOT / "tests" / stage).glob("test_*.py")), f"no tests/{stage}/"
+    assert (ROOT / "docs" / f"{stage}.md").exists()
+
+
+def _imports() -> dict[str, set[str]]:
+    """Every module of src/qr and the qr modules it imports (at the top or inside a function)."""
+    mods = {}
+    for p in SRC.rglob("*.py"):
+        parts = list(p.relative_to(SRC.parent).with_suffix("").parts)
+        mods[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = p
+    graph = {}
+    for name, path in mods.items():
+        package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                base = ".".join(package[:len(package) - node.level + 1] + ([node.module] if node.module else [])) \
+                    if node.level else node.module
+                for a in node.names:
+                    deps.add(f"{base}.{a.name}" if f"{base}.{a.name}" in mods else base)
+            elif isinstance(node, ast.Import):
+                deps.update(a.name for a in node.names)
+        graph[name] = {d for d in deps if d in mods and d != name}
+    return graph
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    graph = _imports()
+    assert len(graph) > 50 and "qr.rollout" in graph["qr.stages.evaluate"]  # the walk sees imports
+    pairs = sorted({tuple(sorted((a, b))) for a in graph for b in graph[a] if a in graph.get(b, ())})
+    assert not pairs, f"modules importing each other: {pairs}"
+
+
+def test_only_the_stages_and_their_helpers_import_the_stages():
+    """Libraries take and return arrays and data frames; the stages (and the CLI, the
+    ``python -m`` entries and the scenarios that run whole diagnoses) call the libraries, not back."""
+    callers_allowed = {"qr.cli", "qr.sim.scenarios"}
+    for name, deps in _imports().items():
+        if name.startswith("qr.stages") or name in callers_allowed:
+            continue
+        assert not {d for d in deps if d.startswith("qr.stages")}, f"{name} imports a stage"
+
+
+def test_the_code_map_names_every_module():
+    readme = (ROOT / "README.md").read_text()
+    code_map = readme[readme.index("## Code map"):]
+    code_map = code_map[:code_map.index("```", code_map.index("```") + 3)]
+    missing = []
+    for p in SRC.rglob("*.py"):
+        if p.name in ("__init__.py", "__main__.py") or p.parent.name == "stages":
+            continue
+        if not re.search(rf"(?<![\w/]){re.escape(p.stem)}(\.py)?\b", code_map):
+            missing.append(str(p.relative_to(SRC)))
+    assert not missing, f"the README's code map does not name {missing}"

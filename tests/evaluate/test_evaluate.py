@@ -1,0 +1,195 @@
+"""``qr evaluate`` and the rollout it computes (../shared/spec/evaluate.md).
+
+Independent expectations: the reference ``hold``'s error is the measured motion itself (computed here
+with numpy); the true model started from the true state reproduces a noise-free flight (errors
+≈ the zero-order hold of the rotor speeds only); the rate-frozen baseline's body-rate error is the
+hold's (ω held in both); dropouts and input gaps remove exactly the windows the spec says.
+"""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from qr import rollout
+from qr.sim.synth import SynthConfig, simulate_truth
+
+from conftest import VEHICLES, run_cli
+
+DRAG_FLAP = [{"name": "linear_drag", "parameters": {"kx": 0.3, "ky": 0.3, "kz": 0.15}},
+             {"name": "blade_flapping", "parameters": {"k": 0.03}}]
+
+
+@pytest.fixture(scope="module")
+def truth():
+    from qr.vehicle import load_vehicle
+
+    v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    return v, simulate_truth(v, DRAG_FLAP, SynthConfig(duration=20, rate=100, seed=3))
+
+
+def _models(v):
+    return {"hold": "hold", "rate_frozen": ("rate_frozen", v), "nominal": (v, []), "true": (v, DRAG_FLAP)}
+
+
+def test_the_true_model_reproduces_a_noise_free_flight_and_the_nominal_does_not(truth):
+    v, tr = truth
+    res = {k: rollout.summary(*s) for k, s in rollout.score(tr, tr, 50, 2, _models(v)).items()}
+    true, nom = res["true"], res["nominal"]
+    # the true plant started from the true state: only the hold of the rotor speeds over a step differs
+    assert rollout.at(true, 50, "p") < 0.01 and rollout.at(true, 50, "R") < 0.02
+    assert rollout.at(nom, 50, "p") > 10 * rollout.at(true, 50, "p")
+    assert rollout.at(nom, 50, "R") > 10 * rollout.at(true, 50, "R")
+    assert nom["w"]["simerr"] > 10 * true["w"]["simerr"]
+    # errors grow with the horizon
+    assert rollout.at(nom, 1, "p") < rollout.at(nom, 10, "p") < rollout.at(nom, 50, "p")
+
+
+def test_hold_is_the_motion_itself_and_rate_frozen_holds_the_rate(truth):
+    v, tr = truth
+    res = {k: rollout.summary(*s) for k, s in rollout.score(tr, tr, 20, 2, _models(v)).items()}
+    p = tr[["px", "py", "pz"]].to_numpy()
+    for h in (1, 7, 20):
+        direct = np.linalg.norm(p[h:] - p[:-h], axis=1).mean()
+        assert rollout.at(res["hold"], h, "p") == pytest.approx(direct, rel=1e-9)
+    assert res["rate_frozen"]["w"]["mae"] == pytest.approx(res["hold"]["w"]["mae"], rel=1e-9)
+    assert res["hold"]["p"]["simerr"] == pytest.approx(sum(res["hold"]["p"]["mae"]))
+
+
+def test_missing_truth_and_input_gaps_remove_exactly_the_windows_the_spec_says(truth):
+    v, tr = truth
+    n, H = len(tr), 10
+    base = rollout.score(tr, tr, H, 2, {"hold": "hold"})["hold"][1]
+    assert list(base[:, 0]) == [n - h for h in range(1, H + 1)]  # every start, every h inside the flight
+    meas = tr.copy()
+    meas.loc[500, ["px", "py", "pz"]] = np.nan  # one missing mocap position
+    c = rollout.score(tr, meas, H, 2, {"hold": "hold"})["hold"][1]
+    assert np.all(base[:, 0] - c[:, 0] == 1)  # each h loses the one window whose i + h is sample 500
+    assert np.array_equal(base[:, 2], c[:, 2])  # the attitude is still there
+    meas = tr.copy()
+    meas.loc[300:304, ["u1", "u2", "u3", "u4"]] = np.nan  # a 5-sample rotor-speed gap; max_input_gap 2
+    c = rollout.score(tr, meas, H, 2, {"hold": "hold"})["hold"][1]
+    # rows 302-304 sit deeper than 2 samples in the gap: starts 302 - H + 1 ... 304 are skipped
+    assert base[0, 0] - c[0, 0] == H + 2
+
+
+def _synth(tmp_path):
+    from qr.sim.synth import write_synth
+    from qr.vehicle import load_vehicle
+
+    v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    write_synth(tmp_path / "s", v, DRAG_FLAP, SynthConfig(duration=20, rate=100, seed=4))
+    nominal = yaml.safe_load((tmp_path / "s" / "vehicle.yaml").read_text())
+    (tmp_path / "true.yaml").write_text(yaml.safe_dump({**nominal, "effects": DRAG_FLAP}))
+    return tmp_path / "s" / "flight.csv", tmp_path / "s" / "vehicle.yaml", tmp_path / "true.yaml"
+
+
+def test_the_spec_command_line_literally(tmp_path):
+    """``qr evaluate FLIGHT.csv --vehicle V.yaml --vehicle W.yaml --out OUTDIR [HYDRA_OVERRIDES...]``."""
+    flight, nominal, true = _synth(tmp_path)
+    out = tmp_path / "ev"
+    r = subprocess.run([sys.executable, "-m", "qr.cli", "evaluate", str(flight), "--vehicle", str(nominal),
+                        "--vehicle", str(true), "--out", str(out), "evaluate.horizon=30"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((out / "evaluation.json").read_text())
+    assert doc["schema"] == "qr.evaluation/1" and doc["flights"] == [str(flight)]
+    assert doc["horizon"] == 30 and doc["dt"] == pytest.approx(0.01)
+    assert set(doc["models"]) == {"hold", "rate_frozen", "vehicle.yaml", "true.yaml"}
+    for block in doc["models"].values():
+        assert set(block) == {"p", "v", "R", "w"} and len(block["p"]["mae"]) == 30
+    assert set(doc["per_flight"]) == {str(flight)}
+    # noisy measurements and a filtered start: the true model is still far better than the nominal one
+    m = doc["models"]
+    assert m["true.yaml"]["R"]["mae"][-1] < 0.25 * m["vehicle.yaml"]["R"]["mae"][-1]
+    assert m["true.yaml"]["p"]["mae"][-1] < 0.5 * m["vehicle.yaml"]["p"]["mae"][-1]
+    report = (out / "report.md").read_text()
+    assert "| true.yaml |" in report and (out / "figures" / "rollout_mae.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("extra, needle", [
+    (["evaluate.horizon=0"], "evaluate.horizon"),
+    (["evaluate.max_input_gap=-1"], "evaluate.max_input_gap"),
+    (["evaluate.bogus=1"], "evaluate.bogus"),
+])
+def test_bad_settings_are_one_line_and_nothing_is_written(tmp_path, capsys, extra, needle):
+
+    flight, nominal, _ = _synth(tmp_path)
+    status, _, err = run_cli(["evaluate", flight, "--vehicle", nominal, "--out", tmp_path / "ev", *extra], capsys)
+    assert status == 2 and needle in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "ev").exists()
+
+
+def test_the_same_vehicle_twice_is_refused(tmp_path, capsys):
+
+    flight, nominal, _ = _synth(tmp_path)
+    status, _, err = run_cli(["evaluate", flight, "--vehicle", nominal, "--vehicle", nominal,
+                              "--out", tmp_path / "ev"], capsys)
+    assert status == 2 and "twice" in err and not (tmp_path / "ev").exists()
+
+
+def test_flights_held_out_by_flight():
+    from qr.stages.evaluate import held_out_by_flight
+
+    fl = [f"f{i}" for i in range(7)]
+    train, test = held_out_by_flight(fl)
+    assert test == ["f2", "f5"] and train == ["f0", "f1", "f3", "f4", "f6"]
+    assert held_out_by_flight(["a", "b"]) == (["a"], ["b"])
+
+
+def test_a_tracked_diagnosis_logs_the_rollout_at_the_horizon(tmp_path, monkeypatch):
+    """The diagnosis's MLflow run carries each model's MAE at h = H (the rollout block of diagnosis.json)."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.stages.diagnose import run_diagnosis
+
+    flight, nominal, _ = _synth(tmp_path)
+    doc = run_diagnosis([flight], nominal, tmp_path / "d", ["evaluate.horizon=20"], track=True, figures=False,
+                        log=lambda m: None)
+    ro = doc["rollout"]
+    assert ro["horizon"] == 20 and set(ro["models"]) == {"hold", "rate_frozen", "nominal", "extended"}
+    # the named drag and flapping make the extended model's attitude rollout better than the nominal one's
+    assert ro["models"]["extended"]["R"]["mae"][-1] < 0.5 * ro["models"]["nominal"]["R"]["mae"][-1]
+    run = tracking._client().search_runs([tracking.experiment_id("diagnose")])[0]
+    assert run.data.metrics["rollout.extended.R_at_20"] == pytest.approx(ro["models"]["extended"]["R"]["mae"][-1])
+    assert "rollout.rate_frozen.w_at_20" in run.data.metrics
+
+
+def test_a_tracked_evaluation_logs_each_model_at_the_horizon_and_its_ratio(tmp_path, monkeypatch):
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.stages.evaluate import run_evaluation
+
+    flight, nominal, true = _synth(tmp_path)
+    doc = run_evaluation([flight], [nominal, true], tmp_path / "e", ["evaluate.horizon=20"], figures=False,
+                         log=lambda m: None, track="unit")
+    (run,) = tracking._client().search_runs([tracking.experiment_id("evaluate")])
+    m, models = run.data.metrics, doc["models"]
+    assert run.info.run_name == "unit" and run.info.status == "FINISHED"
+    for name in models:
+        assert m[f"{name}.p_at_20"] == pytest.approx(models[name]["p"]["mae"][-1])
+        assert m[f"{name}.w_ratio"] == pytest.approx(models[name]["w"]["mae"][-1] / models["rate_frozen"]["w"]["mae"][-1])
+    assert m["rate_frozen.R_ratio"] == 1.0
+
+
+def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
+    """Residual of a constant label 1 left as a fast ±1 alternation: nothing explained sample by sample
+    (R² = 1 − n/n = 0), everything summed over 2 samples (each pair sums to 0); a slow error (a
+    constant 0.5 left) is a quarter of the variance either way.  Windows never cross a segment edge:
+    two 5-sample segments give 4 + 4 windows, not 9 (with 9, the pair across the edge, +1 and +1,
+    would show)."""
+    from types import SimpleNamespace
+
+    from qr.diagnose.core import summed_r2
+
+    n = 10
+    prep = SimpleNamespace(test=np.ones(n, bool), flight=np.repeat([0, 1], 5))
+    y = np.ones((n, 2))
+    fast = np.tile([1.0, -1.0, 1.0, -1.0, 1.0], 2)  # each segment: + - + - + (the edge: + then +)
+    resid = np.column_stack([fast, np.full(n, 0.5)])
+    r = summed_r2(prep, y, resid, 2)
+    assert r["one_step"] == pytest.approx([0.0, 0.75])
+    assert r["summed"] == pytest.approx([1.0, 0.75])

@@ -1,0 +1,205 @@
+"""Stage learn (qr learn, python -m qr.train): a hidden drag learned to the noise floor, repeatable runs, sweeps as MLflow parent + children."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import ROOT
+from learning_data import drag_flight, random_table
+from qr import datasets
+from qr.stages import learn
+from qr.config import compose, to_dict
+
+
+def _rms(e):
+    return float(np.sqrt(np.mean(np.square(e))))
+
+
+def _cfg(dataset, *overrides):
+    return to_dict(compose([f"learn.dataset={dataset}", *overrides]))
+
+
+def test_hidden_drag_is_learned_to_the_noise_floor(tmp_path):
+    """Done-when: with linear drag hidden, the best non-leaking model's test RMSE is within 20 % of the noise
+    floor (the true drag term's RMSE on the same filtered data), and ANN and GPR beat nominal by > 50 %."""
+    from qr.effects import total_term
+    from qr.states import signals
+
+    vehicle, effects, _, states = drag_flight()
+    table = datasets.flight_table(states, vehicle, "drag")
+    assert len(table) == len(states)  # no row dropped: the floor below is on the same samples
+    path = tmp_path / "table.parquet"
+    datasets.write_table(table, path)
+    test = datasets.split(table, {"kind": "thesis"}).test
+    s = signals(states)
+    y = datasets.targets(s, vehicle, "f_a")
+    floor = _rms((y - total_term(effects, s, vehicle)[:, :3])[test])
+    runs = [("linear", "[v_b]"), ("ann", "[v_b]"), ("gpr", "[v_b]"), ("ann", "[v_b,a_b,q,u]")]
+    for i, (kind, inputs) in enumerate(runs):
+        learn.run(_cfg(path, f"model={kind}", f"learn.inputs={inputs}", "split=thesis"), tmp_path / "out", f"r{i}")
+    got = learn.collect(tmp_path / "out")
+    assert got["nominal_rmse"].to_numpy() == pytest.approx(_rms(y[test]))  # nominal = the labels, same samples
+    assert got.set_index("name").loc["r3", "leaks_target"]
+    best = learn.best(got)
+    assert not best["leaks_target"]
+    assert 0.8 * floor <= best["rmse"] <= 1.2 * floor, (best["name"], best["rmse"], floor)
+    for kind in ("ann", "gpr"):
+        ok = got[(got["kind"] == kind) & ~got["leaks_target"]]
+        assert len(ok) and (ok["ratio"] < 0.5).all(), ok[["name", "ratio"]]
+    gpr = got[got["kind"] == "gpr"].iloc[0]
+    assert 0.85 < gpr["coverage95"] <= 1.0
+
+
+def test_best_never_picks_a_leaking_run():
+    runs = pd.DataFrame({"name": ["a", "b", "c"], "rmse": [0.1, 0.01, 0.2], "leaks_target": [False, True, False],
+                         "row": [1, 2, 3]})
+    assert learn.best(runs)["name"] == "a"
+    assert learn.best(runs[runs["leaks_target"]]) is None
+
+
+def test_same_config_and_seed_give_the_same_numbers(tmp_path):
+    from qr import models
+
+    path = tmp_path / "table.parquet"
+    datasets.write_table(random_table(flights=6, n=200), path)
+    cfg = _cfg(path, "model=ann", "model.activation=tanh", "model.neurons=6", "split=by_flight", "seed=5")
+    a = learn.run(cfg, tmp_path / "a", "run")
+    b = learn.run(cfg, tmp_path / "b", "run")
+    strip = lambda m: {k: v for k, v in m.items() if k != "train_time_s"}  # noqa: E731
+    assert strip(a["metrics"]) == strip(b["metrics"])
+    X = np.random.default_rng(0).normal(size=(20, 7))
+    np.testing.assert_array_equal(models.load(a["model_dir"]).predict(X), models.load(b["model_dir"]).predict(X))
+    c = learn.run({**cfg, "model": {**cfg["model"], "seed": 6}}, tmp_path / "c", "run")
+    assert c["metrics"]["rmse"] != a["metrics"]["rmse"]
+
+
+def test_named_sweeps_are_the_thesis_tables():
+    from hydra import compose as hcompose
+    from hydra import initialize_config_dir
+
+    from qr.config import CONF_DIR
+
+    force = learn.apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=18"))
+    assert force["learn"]["inputs"] == ["v_b", "a_b", "q", "u"] and force["model"]["neurons"] == 5
+    assert datasets.leaks_target(force["learn"]["target"], force["learn"]["inputs"]) and force["thesis"] == 0.0775
+    torque = learn.apply_row(_cfg("x.parquet", "sweep=table_4_3", "learn.row=13"))
+    assert (torque["learn"]["target"], torque["model"]["layers"], torque["model"]["neurons"]) == ("tau_a", 2, 3)
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        for name, jobs in (("table_4_2", 20), ("table_4_3", 17), ("gpr_kernels", 8)):
+            cfg = hcompose("config", overrides=[f"sweep={name}"], return_hydra_config=True)
+            assert learn.count_jobs(cfg) == jobs
+            if name != "gpr_kernels":
+                assert sorted(cfg.sweep.rows) == list(range(1, jobs + 1))
+    with pytest.raises(Exception, match="learn.row=30 is not a row"):
+        learn.apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=30"))
+
+
+def test_multirun_is_a_parent_run_with_children_logged_by_two_processes(tmp_path, monkeypatch):
+    """A Hydra multirun on the 2-process joblib launcher: one MLflow parent, one child per job, none lost."""
+    path = tmp_path / "table.parquet"
+    datasets.write_table(random_table(flights=5, n=150), path)
+    out = tmp_path / "sweep"
+    env = {**os.environ, "QR_TRACKING": "on", "QR_RESULTS": str(tmp_path / "results"), "OPENBLAS_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "qr.train", "-m", f"learn.dataset={path}", f"learn.out={out}",
+           f"hydra.sweep.dir={tmp_path / 'hydra'}", "model=linear", "model.alpha=0,0.001,0.01,0.1", "learn.inputs=[v_b]",
+           "hydra/launcher=joblib2"]
+    res = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-3000:]
+    table = pd.read_csv(out / "runs.csv")
+    assert sorted(table["name"]) == ["job000", "job001", "job002", "job003"]
+
+    for k in ("QR_TRACKING", "QR_RESULTS"):
+        monkeypatch.setenv(k, env[k])
+    from qr import tracking
+
+    client = tracking._client()
+    runs = client.search_runs([tracking.experiment_id("learn")], max_results=100)
+    parents = [r for r in runs if r.data.tags.get("qr.parent") == "true"]
+    children = [r for r in runs if r.data.tags.get("mlflow.parentRunId")]
+    assert len(parents) == 1 and len(children) == 4 and len(runs) == 5
+    parent = parents[0]
+    assert parent.info.status == "FINISHED" and parent.data.metrics["runs"] == 4
+    assert parent.data.metrics["best_rmse"] == pytest.approx(table["rmse"].min())
+    by_name = table.set_index("name")
+    for c in children:
+        assert c.data.tags["mlflow.parentRunId"] == parent.info.run_id and c.info.status == "FINISHED"
+        assert c.data.metrics["rmse"] == pytest.approx(by_name.loc[c.info.run_name, "rmse"])
+        assert c.data.params["model.kind"] == "linear" and c.data.tags["qr.leaks_target"] == "false"
+        assert {a.path for a in client.list_artifacts(c.info.run_id, "model")} >= {"model/MLmodel"}
+        assert {a.path for a in client.list_artifacts(c.info.run_id, "qr_model")} >= {"qr_model/model.json"}
+        assert len(c.data.tags["qr.data_digest"]) == 16
+        # the data set is the run's input, under its name, with the same content digest
+        (used,) = c.inputs.dataset_inputs
+        assert used.dataset.name == "table" and used.dataset.digest == c.data.tags["qr.data_digest"]
+        assert {t.key: t.value for t in used.tags}["mlflow.data.context"] == "training"
+
+
+@pytest.mark.parametrize("kind, flavor", [("ann", "pytorch"), ("linear", "sklearn"), ("gpr", "sklearn")])
+def test_the_logged_mlflow_model_predicts_what_qr_predicts(tmp_path, monkeypatch, kind, flavor):
+    """Each learned model is logged in MLflow's own flavor, with a signature and an input example, and
+    ``mlflow.pyfunc`` loads it back to the same predictions as qr's saved model (physical units)."""
+    import mlflow.pyfunc
+
+    from qr import models, tracking
+
+    monkeypatch.setenv("QR_TRACKING", "on")
+    path = tmp_path / "table.parquet"
+    datasets.write_table(random_table(flights=5, n=120), path)
+    cfg = _cfg(path, f"model={kind}", "learn.inputs=[v_b,u]",
+               *(["model.hyper_subset=100"] if kind == "gpr" else ["model.max_iter=30"] if kind == "ann" else []))
+    record = learn.run(cfg, tmp_path / "out", "one")
+    client = tracking._client()
+    (run,) = client.search_runs([tracking.experiment_id("learn")])
+    logged = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/model")
+    meta = logged.metadata
+    assert flavor in meta.flavors and meta.signature is not None and meta.saved_input_example_info
+    table = pd.read_parquet(path)
+    X, _ = datasets.xy(table, ["v_b", "u"], "f_a")
+    X = X[:40]
+    ours = models.load(record["model_dir"]).predict(X)
+    got = logged.predict(X if flavor == "pytorch" else pd.DataFrame(X, columns=datasets.columns(["v_b", "u"])))
+    np.testing.assert_allclose(np.asarray(got, dtype=float), ours, rtol=1e-9, atol=1e-12)
+
+
+def test_learning_tables_have_the_thesis_columns(tmp_path):
+    from qr.report.learning import write_learning_tables
+
+    path = tmp_path / "table.parquet"
+    datasets.write_table(random_table(flights=5, n=120), path)
+    jobs = {"table_4_2": ["sweep=table_4_2", "learn.row=2", "learn.row=14"], "table_4_3": ["sweep=table_4_3", "learn.row=9"],
+            "gpr_kernels": ["sweep=gpr_kernels"]}
+    for sweep, (name, *rows) in jobs.items():
+        for row in rows or [None]:
+            cfg = learn.apply_row(_cfg(path, name, *([row] if row else []), "model.max_iter=30"
+                                       if sweep != "gpr_kernels" else "model.hyper_subset=100"))
+            learn.run(cfg, tmp_path / sweep, learn.job_name(cfg))
+    out = {t: tmp_path / "tables" / f"{t}.csv" for t in ("table_3_1", "table_3_2", "table_4_2", "table_4_3",
+                                                            "gpr_kernels")}
+    write_learning_tables({s: tmp_path / s for s in jobs}, out)
+    t42 = pd.read_csv(out["table_4_2"])
+    assert list(t42.columns[:6]) == ["Model No.", "Inputs", "No. of hidden layers", "No. of hidden layer neurons",
+                                     "Activation function", "RMSE (N)"]
+    assert list(t42["Model No."]) == [0, 2, 14] and list(t42["leaks target"]) == [False, False, True]
+    assert t42.loc[0, "Inputs"] == "Nominal model" and t42.loc[0, "RMSE / nominal (%)"] == 100
+    assert t42.loc[0, "thesis RMSE (N)"] == 0.563 and t42.loc[2, "Inputs"] == "v_b, a_b, u"
+    assert "RMSE (N m)" in pd.read_csv(out["table_4_3"]).columns
+    t31 = pd.read_csv(out["table_3_1"])
+    assert list(t31.columns) == ["Output", "Hyperparameter", "Initialized value", "Trained value"]
+    assert len(t31) == 3 * 5  # sigma_f^2, three length scales, noise per axis
+    assert len(pd.read_csv(out["table_3_2"])) == 3 * 4  # intercept + three velocities per axis
+    assert all(p.with_suffix(".md").exists() for p in out.values())
+
+
+def test_user_mistake_is_one_clear_line(tmp_path):
+    path = tmp_path / "table.parquet"
+    datasets.write_table(random_table(flights=3, n=50), path)
+    res = subprocess.run([sys.executable, "-m", "qr.train", f"learn.dataset={path}", "learn.inputs=[v_bb]", f"learn.out={tmp_path}"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("qr learn: error: unknown input group 'v_bb'"), res.stderr
+    assert "did you mean 'v_b'" in lines[0]

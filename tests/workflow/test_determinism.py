@@ -1,0 +1,49 @@
+"""Same seed, same results: two full runs of the reduced workflow give identical tables.
+
+The two runs (tests/workflow_runs.py) are an uninterrupted `snakemake --cores 2 --configfile
+conf/workflow_ci.yaml` and the run of tests/workflow/test_faults.py, which was interrupted with Ctrl-C and
+with SIGKILL and resumed: every job of it ran from scratch too, some of them twice.  Every CSV
+table under results/ is compared exactly, wall-clock columns (training time) aside.
+"""
+
+import pandas as pd
+import pytest
+
+import workflow_runs as wr
+
+# the whole-workflow runs are shared (memoised) between these modules: keep them on one xdist worker
+pytestmark = pytest.mark.xdist_group("reduced_workflow")
+
+
+@pytest.fixture(scope="session")
+def clean(tmp_path_factory):
+    return wr.clean_run(tmp_path_factory)
+
+
+@pytest.fixture(scope="session")
+def faulted(tmp_path_factory):
+    return wr.faulted_run(tmp_path_factory)
+
+
+def test_two_full_runs_give_identical_tables(clean, faulted):
+    a, b = wr.tables(clean), wr.tables(faulted["results"])
+    assert faulted["resume_rc"] == 0, faulted["resume_log"]
+    assert sorted(a) == sorted(b)
+    # every stage's tables are there (a stage added to `rule all` later is compared too)
+    for expected in ("ingest/summary.csv", "filter/summary.csv", "tables/table_4_2.csv", "tables/table_4_3.csv",
+                     "tables/table_3_1.csv", "tables/gpr_kernels.csv", "simulation/tracking.csv",
+                     "simulation/stability.csv", "tables/rollout_held_out.csv"):
+        assert expected in a
+    for name in a:
+        assert len(a[name]) > 0, name
+        pd.testing.assert_frame_equal(a[name], b[name], check_exact=True, obj=name)
+
+
+def test_two_full_runs_give_identical_state_tables(clean, faulted):
+    """The canonical flights and the filters' state tables too (Parquet, compared value by value)."""
+    for sub in ("ingest", "filter"):
+        files = sorted(p.relative_to(clean) for p in (clean / sub).rglob("*.parquet"))
+        assert files
+        for rel in files:
+            pd.testing.assert_frame_equal(pd.read_parquet(clean / rel), pd.read_parquet(faulted["results"] / rel),
+                                          check_exact=True, obj=str(rel))
