@@ -10,6 +10,11 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("QR_DATA", ROOT.parent / "shared" / "data" / "imrclab-crazyflie"))
 VEHICLES = ROOT / "conf" / "vehicle"
 
+# Two xdist workers on two cores: one numba thread each, or the compiled rollouts of both workers fight
+# over the cores (the rollout's sums do not depend on the thread count: tests/evaluate/test_evaluate.py).
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
 # A test run started in the background (`make test &`, nohup, a non-interactive shell) inherits an
 # ignored SIGINT, which Python and every child process keep; the Ctrl-C tests need it delivered.
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:

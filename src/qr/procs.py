@@ -3,29 +3,26 @@
 A SIGKILL (or a machine that dies) runs no clean-up code, so what a killed
 process leaves behind is recognised later by the process that left it: its
 host name, pid and start time (``/proc/<pid>/stat``, so a reused pid does not
-pass for the dead process).  Three things are cleaned up this way, each only
+pass for the dead process).  Two things are cleaned up this way, each only
 when its owner is certainly gone (same host, pid not running or a zombie):
 
 - MLflow runs left RUNNING: :func:`qr.tracking.reap_stale` marks them KILLED;
 - write-then-rename temporaries of :mod:`qr.atomic` (their names carry the
-  writer's identity): :func:`remove_orphan_temporaries`;
-- Snakemake's directory lock (``.snakemake/locks``), which Snakemake never
-  recognises as stale: :func:`snakemake_guard`, called when the workflow is
-  parsed, removes it when every Snakemake process that could hold it is gone.
+  writer's identity): :func:`remove_orphan_temporaries`.
+
+Snakemake's directory lock is Snakemake's: after a SIGKILL, ``snakemake --unlock``.
 
 A SIGTERM can be caught: :func:`sigterm_raises` turns it into an exception
 (:class:`Terminated`) so clean-up code runs; :func:`signals_held` defers
 SIGINT/SIGTERM while a few steps must not be cut short.
 
 What another host left is never touched (its processes cannot be checked from
-here): ``snakemake --unlock`` for the lock, and
-``mlflow.MlflowClient().set_terminated(run_id, "KILLED")`` for a run, are the
-manual ways out for that case.
+here): ``mlflow.MlflowClient().set_terminated(run_id, "KILLED")`` is the manual
+way out for a run.
 """
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import os
 import re
@@ -211,50 +208,4 @@ def remove_orphan_temporaries(root, recursive: bool = True) -> list[Path]:
             removed.append(p)
         if not recursive:
             break
-    return removed
-
-
-# ---- Snakemake's directory lock --------------------------------------------------------------
-
-def snakemake_guard(snakemake_dir=".snakemake", log=sys.stderr) -> list[Path]:
-    """Drop a dead run's Snakemake lock, then register this process as a possible lock holder.
-
-    Snakemake locks the working directory (``.snakemake/locks/*.lock``) and removes the lock
-    when it exits, but not when it is killed with SIGKILL; the next run then refuses to start
-    ("Directory cannot be locked").  Every Snakemake process that parses the workflow leaves an
-    owner file ``.snakemake/qr-owners/<host>.<pid>.<start>`` (removed when it exits).  When lock
-    files exist and no owner is alive (same host, by pid and start time), the lock is stale and
-    removed.  An owner on another host keeps the lock (``snakemake --unlock`` then).
-    Returns the lock files removed.
-    """
-    base = Path(snakemake_dir)
-    owners = base / "qr-owners"
-    me = identity()
-    mine = owners / f"{me['host']}.{me['pid']}.{me['start']}"
-    live = []
-    if owners.is_dir():
-        for f in owners.iterdir():
-            parts = f.name.split(".")
-            if f == mine:
-                continue  # this process is about to take the lock, it cannot hold it already
-            if len(parts) == 3 and parts[0] == host() and not alive(parts[1], parts[2]):
-                f.unlink(missing_ok=True)
-            else:
-                live.append(f.name)
-    removed = []
-    locks = base / "locks"
-    if not live and locks.is_dir():
-        removed = sorted(locks.glob("*.lock"))
-        for f in removed:
-            f.unlink(missing_ok=True)
-        if removed and log is not None:
-            print(f"qr: removed the Snakemake lock of a killed run ({len(removed)} lock file(s) in {locks}; "
-                  "no Snakemake process of it is alive)", file=log)
-    try:
-        owners.mkdir(parents=True, exist_ok=True)
-        if not mine.exists():
-            mine.touch()
-            atexit.register(lambda: mine.unlink(missing_ok=True))
-    except OSError:
-        pass
     return removed

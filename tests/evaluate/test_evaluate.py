@@ -193,3 +193,29 @@ def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
     r = summed_r2(prep, y, resid, 2)
     assert r["one_step"] == pytest.approx([0.0, 0.75])
     assert r["summed"] == pytest.approx([1.0, 0.75])
+
+
+def test_the_rollout_sums_are_the_same_digits_on_one_thread_or_two(tmp_path):
+    """The starts run in fixed interleaved chunks, so the sums do not depend on how many threads numba
+    has (the test suite's workers run on one thread each: this runs in a process that has two)."""
+    import os
+
+    code = """
+import numpy as np, numba
+from qr import rollout
+from qr.sim.synth import SynthConfig, simulate_truth
+from qr.vehicle import load_vehicle
+v = load_vehicle(%r)
+tr = simulate_truth(v, %r, SynthConfig(duration=8, rate=100, seed=3))
+models = {"rate_frozen": ("rate_frozen", v), "true": (v, %r)}
+out = []
+for n in (1, 2):
+    numba.set_num_threads(n)
+    out.append({k: s[0] for k, s in rollout.score(tr, tr, 30, 2, models).items()})
+assert numba.get_num_threads() == 2
+assert all(np.array_equal(out[0][k], out[1][k]) for k in models), "thread count changed the sums"
+print("same")
+""" % (str(VEHICLES / "asctec_hummingbird.yaml"), DRAG_FLAP, DRAG_FLAP)
+    env = {**os.environ, "NUMBA_NUM_THREADS": "2"}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-2000:]

@@ -212,7 +212,7 @@ def faulted_run(tmp_path_factory) -> dict:
     1. Ctrl-C (SIGINT to the whole process group) while a learning sweep has its MLflow parent run open;
     2. rerun, then SIGKILL to the whole group (nothing can clean up) while a resumed sweep has its
        parent run open;
-    3. rerun: it must complete.
+    3. rerun: refused (the killed run's lock); ``snakemake --unlock``; rerun: it must complete.
 
     Returns what was observed after each step (return codes, the store's runs, lock and
     incomplete markers, broken outputs)."""
@@ -243,8 +243,11 @@ def faulted_run(tmp_path_factory) -> dict:
     obs["incomplete_after_sigkill"] = sorted(x.name for x in (path / ".snakemake" / "incomplete").rglob("*")
                                              if x.is_file())
 
+    obs["locked_rc"] = snakemake(path, *args, check=False)
+    obs["locked_log"] = (path / "snakemake.log").read_text(errors="replace")
+    snakemake(path, "--unlock")
     obs["resume_rc"] = snakemake(path, *args, check=False)
-    obs["resume_log"] = (path / "snakemake.log").read_text(errors="replace")  # whole: the guard speaks first
+    obs["resume_log"] = (path / "snakemake.log").read_text(errors="replace")
     obs["final"] = all_runs(results)
     _memo["faulted"] = obs
     return obs

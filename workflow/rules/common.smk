@@ -11,12 +11,10 @@ configfile: "conf/workflow.yaml"
 
 validate(config, "../schemas/config.schema.yaml")
 
-# After a killed run (SIGKILL, power loss): drop Snakemake's stale directory lock and orphaned
-# write-then-rename temporaries, each only if the process that left it is gone (qr.procs).
-# profiles/default sets rerun-incomplete, so a plain `snakemake --cores 2` then just continues.
-from qr.procs import remove_orphan_temporaries, snakemake_guard
+# After a killed run (SIGKILL, power loss): drop orphaned write-then-rename temporaries, each only if
+# the process that left it is gone (qr.procs).  Snakemake's own lock is Snakemake's (`--unlock`).
+from qr.procs import remove_orphan_temporaries
 
-snakemake_guard(".snakemake")
 remove_orphan_temporaries("results")
 
 DATA = yaml.safe_load(open(config["data"]))
