@@ -43,10 +43,21 @@ DIAG_FIRST = DIAG.get("first", "brushless")
 DIAG_CARRY = DIAG.get("carry_to", "payload")
 
 
-def diagnosis_overrides(set_name, key="overrides"):
-    """Hydra overrides of a set's diagnoses; the carry-to set adds ``carry_overrides``."""
-    extra = list(DIAG.get("carry_overrides", [])) if set_name == DIAG_CARRY and DIAG_FIRST in SETS else []
-    return list(DIAG.get("overrides", [])) + (list(DIAG.get(key, [])) if key != "overrides" else []) + extra
+def experiments(names):
+    """Named experiments (conf/experiment/) as one Hydra override: a config group is selected once, with
+    its configs merged in list order."""
+    return [f"+experiment=[{','.join(names)}]"] if names else []
+
+
+def diagnosis_overrides(set_name, each=False, extra=(), extra_overrides=()):
+    """Hydra overrides of a set's diagnoses: the named experiments of `diagnose.experiments`, then
+    `each_experiments` (a per-flight diagnosis), `carry_experiments` (the carry-to set) and ``extra``;
+    the plain `overrides` keys likewise, after them."""
+    carry = set_name == DIAG_CARRY and DIAG_FIRST in SETS
+    parts = ["", "each_" if each else None, "carry_" if carry else None]
+    names = [n for p in parts if p is not None for n in DIAG.get(f"{p}experiments", [])] + list(extra)
+    plain = [o for p in parts if p is not None for o in DIAG.get(f"{p}overrides", [])] + list(extra_overrides)
+    return experiments(names) + plain
 
 
 def diagnosis_vehicle(wildcards):

@@ -38,7 +38,7 @@ rule diagnose_each:
     benchmark:
         "results/benchmarks/diagnose/{set}_flights.tsv"
     params:
-        overrides=lambda wc: diagnosis_overrides(wc.set, "each_overrides"),
+        overrides=lambda wc: diagnosis_overrides(wc.set, each=True),
     conda:
         "../envs/qr.yaml"
     script:
@@ -74,7 +74,8 @@ rule diagnose_check:
     benchmark:
         "results/benchmarks/diagnose/{set}_check.tsv"
     params:
-        overrides=lambda wc: list(DIAG.get("overrides", [])) + list(DIAG_CHECK.get("overrides", [])),
+        overrides=lambda wc: experiments([*DIAG.get("experiments", []), *DIAG_CHECK.get("experiments", [])])
+        + [*DIAG.get("overrides", []), *DIAG_CHECK.get("overrides", [])],
     conda:
         "../envs/qr.yaml"
     script:

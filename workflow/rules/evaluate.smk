@@ -1,6 +1,9 @@
-# Evaluate: the rollout yardstick (../shared/spec/evaluate.md) on flights held out by flight: every
+# Evaluate: the rollout yardstick (docs/spec/evaluate.md) on flights held out by flight: every
 # third flight of a set is held out, the others are diagnosed, and `qr evaluate` scores the nominal
 # and the extended vehicle on the held-out ones beside the references hold and rate_frozen.
+# Its training diagnosis adds the named experiments of conf/workflow.yaml's `evaluate.experiments`.
+
+EVAL = config.get("evaluate", {})
 
 
 rule evaluate_held_out:
@@ -17,8 +20,10 @@ rule evaluate_held_out:
     benchmark:
         "results/benchmarks/evaluate/{set}.tsv"
     params:
-        overrides=lambda wc: diagnosis_overrides(wc.set) + list(config.get("evaluate", {}).get("overrides", [])),
-        single=lambda wc: diagnosis_overrides(wc.set, "each_overrides"),
+        overrides=lambda wc: diagnosis_overrides(wc.set, extra=EVAL.get("experiments", []),
+                                                 extra_overrides=EVAL.get("overrides", [])),
+        single=lambda wc: diagnosis_overrides(wc.set, each=True, extra=EVAL.get("experiments", []),
+                                              extra_overrides=EVAL.get("overrides", [])),
     conda:
         "../envs/qr.yaml"
     script:

@@ -195,7 +195,8 @@ def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
 def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
                       track: str | None = None, estimates=None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal and the
-    extended vehicle on the held-out ones (``single_overrides`` too when one flight trains)."""
+    extended vehicle on the held-out ones (with ``single_overrides`` instead of ``overrides`` when one
+    flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use)."""
     import json
 
     from .diagnose import run_diagnosis
@@ -209,9 +210,10 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
 
     train, test = held_out_by_flight(flights)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
-    extra = list(single_overrides) if len(train) == 1 else []
+    if len(train) == 1 and single_overrides:
+        overrides = single_overrides
     stored = dict(zip(flights, estimates)) if estimates else {}
-    run_diagnosis(train, vehicle, diag_out, [*overrides, *extra], track=False, figures=False,
+    run_diagnosis(train, vehicle, diag_out, list(overrides), track=False, figures=False,
                   reports=[reports[f] for f in train], log=lambda m: None,
                   estimates=[stored[f] for f in train] if stored else None)
     ext = Path(diag_out) / "extended_vehicle.yaml"
