@@ -40,6 +40,13 @@ def to_dict(cfg) -> dict:
     return OmegaConf.to_container(cfg, resolve=True)
 
 
+def experiments(names) -> list[str]:
+    """Named experiments (``conf/experiment/``) as one Hydra override, ``['+experiment=[a,b]']`` (a config
+    group is selected once; its configs merge in list order), or none."""
+    names = list(names)
+    return [f"+experiment=[{','.join(names)}]"] if names else []
+
+
 def vehicle_path(name_or_path: str) -> Path:
     """A vehicle given by name (``conf/vehicle/<name>.yaml``) or by path."""
     p = Path(name_or_path)

@@ -32,9 +32,12 @@ def test_ctrl_c_ends_every_run_and_leaves_no_half_written_output(faulted):
     # open when Ctrl-C came (the sweep's parent among them) ended FAILED or KILLED
     assert {r.info.status for r in runs.values()} <= DONE
     open_parents = faulted["sigint_parents"] & faulted["sigint_open"]
-    assert open_parents
+    # (a sweep may finish in the moment between the look at the store and Ctrl-C: FINISHED before it)
+    cut = {rid for rid in open_parents if runs[rid].info.end_time >= faulted["sigint_ms"]}
+    assert cut, "no sweep was open when Ctrl-C came"
     for rid in open_parents:
-        assert runs[rid].info.status in ("FAILED", "KILLED"), runs[rid].info
+        info = runs[rid].info
+        assert info.status in ("FAILED", "KILLED") if rid in cut else info.status == "FINISHED", info
     assert faulted["after_sigint_broken"] == []
     assert faulted["locks_after_sigint"] == []  # Snakemake released its lock itself
 

@@ -226,6 +226,7 @@ def faulted_run(tmp_path_factory) -> dict:
     p = start(path, *args)
     wait_for(lambda: parent_files(results), p, "a learning sweep opened its parent run")
     obs["sigint_open"] = running(results)
+    obs["sigint_ms"] = int(time.time() * 1000)  # runs that end after this were ended by the Ctrl-C
     obs["sigint_rc"] = kill_group(p, signal.SIGINT)
     obs["sigint_parents"] = set(parent_files(results).values())
     obs["after_sigint"] = all_runs(results)

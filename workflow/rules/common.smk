@@ -13,6 +13,7 @@ validate(config, "../schemas/config.schema.yaml")
 
 # After a killed run (SIGKILL, power loss): drop orphaned write-then-rename temporaries, each only if
 # the process that left it is gone (qr.procs).  Snakemake's own lock is Snakemake's (`--unlock`).
+from qr.config import experiments  # named experiments (conf/experiment/) as one Hydra override
 from qr.procs import remove_orphan_temporaries
 
 remove_orphan_temporaries("results")
@@ -41,12 +42,6 @@ def flights_of(set_name, pattern):
 DIAG = config.get("diagnose", {})
 DIAG_FIRST = DIAG.get("first", "brushless")
 DIAG_CARRY = DIAG.get("carry_to", "payload")
-
-
-def experiments(names):
-    """Named experiments (conf/experiment/) as one Hydra override: a config group is selected once, with
-    its configs merged in list order."""
-    return [f"+experiment=[{','.join(names)}]"] if names else []
 
 
 def diagnosis_overrides(set_name, each=False, extra=(), extra_overrides=()):
