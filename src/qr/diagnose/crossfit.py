@@ -38,18 +38,6 @@ def fixed_settings(filter_cfg: dict, report: dict) -> dict:
     return cfg
 
 
-def whole_flight_report(flight: pd.DataFrame, vehicle, filter_cfg: dict) -> dict | None:
-    """The filter stage's report of the whole flight when its filter tunes itself (``filter=auto``): the
-    tuned noise values every segment's estimate then uses, so ``qr diagnose`` and ``qr evaluate`` on
-    the command line compute what the workflow computes from the filter stage's files.  None when
-    nothing is tuned (the settings are then all there is)."""
-    from ..estimation.settings import resolve
-
-    if not resolve(filter_cfg)["tune"]["enabled"]:
-        return None
-    return estimate(flight, vehicle, filter_cfg)[1]
-
-
 def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1.0) -> dict:
     """Frozen settings with the rotor filters' bandwidth raised to the attitude and position filters'.
 
@@ -121,8 +109,8 @@ def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: d
                       min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
-    diagnosis's own recipe (:func:`prepare_flight`) with the whole flight's ``report`` (without one, a
-    tuning filter is tuned on the longest segment, which comes first)."""
+    diagnosis's own recipe (:func:`prepare_flight`), the longest segment first, where a
+    tuning filter is tuned."""
     from ..segments import flight_segments
 
     tables = []

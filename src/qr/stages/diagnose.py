@@ -57,7 +57,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..flight import read_flight
     from ..segments import flight_segments
     from ..diagnose.coefficients import coefficient_checks
-    from ..diagnose.crossfit import Estimates, prepare_flight, whole_flight_report
+    from ..diagnose.crossfit import Estimates, prepare_flight
     from ..torque_remainder import FEATURES
     from ..diagnose.core import DiagnoseConfig, diagnose, extended_effects
     from ..diagnose.report import make_figures, note_nulls, to_json, write_report
@@ -82,11 +82,10 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     for i, fs in enumerate(split):
         name = Path(flights[i]).name
         _say_segments(say, name, fs)
-        # tuned on the whole flight, as the filter stage tunes it (the workflow's report of it, or the same
-        # call here): the command line and the workflow compute the same numbers
-        report = reports[i] if reports else whole_flight_report(measured[i], vehicle, to_dict(cfg.filter))
+        report = reports[i] if reports else None
         stored = Estimates(estimates[i], to_dict(cfg.filter), report, vehicle) if estimates and report else None
-        for seg in fs.used:
+        # the longest segment first: a tuning filter (filter=auto) is tuned there, once per flight
+        for seg in sorted(fs.used, key=lambda s: s.window[0] - s.window[1]):
             got = stored.get(seg.window[0]) if stored else None
             if got:
                 st, pair = got

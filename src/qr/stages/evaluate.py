@@ -69,7 +69,7 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
     from ..atomic import atomic_dir, write_json, write_text
     from ..config import to_dict
-    from ..diagnose.crossfit import Estimates, fixed_settings, whole_flight_report
+    from ..diagnose.crossfit import Estimates, fixed_settings
     from ..estimation import estimate
     from ..estimation.settings import resolve as resolve_filter
     from ..flight import read_flight
@@ -88,9 +88,8 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
-        rep = reports[i] if reports else whole_flight_report(m, vehs[0], filter_cfg)  # as qr diagnose
-        settings = fixed_settings(filter_cfg, rep)
-        stored = Estimates(estimates[i], filter_cfg, rep, vehs[0]) if estimates and rep else None
+        settings = fixed_settings(filter_cfg, reports[i]) if reports else filter_cfg
+        stored = Estimates(estimates[i], filter_cfg, reports[i], vehs[0]) if estimates and reports else None
         parts = []
         for seg in fs.used:
             got = stored.get(seg.window[0]) if stored else None
