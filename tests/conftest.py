@@ -72,3 +72,30 @@ def small_flight(n=200, seed=0, yaw_amplitude=0.5):
     for i in range(1, 5):
         df[f"u{i}"] = 5872.0 + rng.normal(0, 20, n)
     return df
+
+
+def ground_rows(n, p, u, t0, seed=0, rate=100.0):
+    """``n`` samples of a vehicle at rest at ``p`` (level; mocap noise 0.5 mm and 0.17 deg), rotor speeds ``u``
+    (array or scalar)."""
+    rng = np.random.default_rng(seed)
+    df = pd.DataFrame({"t": t0 + np.arange(n) / rate})
+    for k, c in enumerate(["px", "py", "pz"]):
+        df[c] = p[k] + rng.normal(0, 0.0005, n)
+    half = rng.normal(0, 0.003 / 2, (n, 3))  # small rotation vectors / 2: a unit quaternion near identity
+    q = np.column_stack([np.ones(n), half])
+    df[["qw", "qx", "qy", "qz"]] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    for c in ["u1", "u2", "u3", "u4"]:
+        df[c] = u
+    return df
+
+
+def on_the_ground(flight, vehicle, before_s=5.0, after_s=5.0, spin_up_s=0.0, rate=100.0):
+    """``flight`` with ground rows before (motors off, then a spin-up to 0.9 m g on the floor) and after (idle)."""
+    p0 = flight[["px", "py", "pz"]].iloc[0].to_numpy() * [1, 1, 0] + [0, 0, 0.05]
+    p1 = flight[["px", "py", "pz"]].iloc[-1].to_numpy() * [1, 1, 0] + [0, 0, 0.05]
+    n_up = int(spin_up_s * rate)
+    off = ground_rows(int(before_s * rate) - n_up, p0, 0.0, 0.0, 0, rate)
+    up = ground_rows(n_up, p0, np.sqrt(0.9) * vehicle.hover_speed * np.linspace(0.2, 1, n_up), off["t"].iloc[-1] + 1 / rate, 1, rate)
+    air = flight.assign(t=(flight["t"] - flight["t"].iloc[0] + before_s).round(6))
+    idle = ground_rows(int(after_s * rate), p1, 0.2 * vehicle.hover_speed, air["t"].iloc[-1] + 1 / rate, 2, rate)
+    return pd.concat([off, up, air, idle], ignore_index=True), (before_s, float(air["t"].iloc[-1]))

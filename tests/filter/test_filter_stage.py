@@ -127,7 +127,10 @@ def test_thesis_style_figures_nis_figure_and_summary(flight_csv, tmp_path):
 def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     """The filter stage is the home of the state estimates: its cross-fit file holds each segment's matched
     estimate and even/odd halves; a diagnosis given it reads them instead of filtering again and gets
-    the same numbers digit for digit; made with other filter settings, the file is not used."""
+    the same numbers digit for digit, and so does ``qr diagnose`` on the command line, which filters the
+    flight itself (both tune filter=auto on the longest airborne segment, never on ground rows); made
+    with other filter settings, the file is not used."""
+    from conftest import on_the_ground
     from qr.stages.diagnose import run_diagnosis
     from qr.effects import parse_effect_spec
     from qr.vehicle import load_vehicle
@@ -137,6 +140,7 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
                            SynthConfig(duration=40.0, rate=100.0, seed=4))
     t = flight["t"].to_numpy()
     flight = flight[(t < 18.0) | (t > 19.0)].reset_index(drop=True)  # a logger outage: two segments
+    flight, _ = on_the_ground(flight, v, before_s=3.0, after_s=2.0, spin_up_s=1.0)  # take-off, landing
     path = tmp_path / "gap.csv"
     write_flight(flight, path)
     vf = VEHICLES / "asctec_hummingbird.yaml"
@@ -144,20 +148,25 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     report = run_with_overrides(path, vf, tmp_path / "gap.parquet", tmp_path / "gap.nis.json", ["filter=auto"],
                                 track=False, crossfit_out=xfit)
     table = pd.read_parquet(xfit)
-    assert sorted(table["segment_start"].unique()) == [0.0, pytest.approx(19.01)]
+    assert sorted(table["segment_start"].unique()) == [3.0, pytest.approx(22.01)]
     assert sorted(table["part"].unique()) == ["even", "full", "odd"]
+    assert report["tuned_on_s"] == [pytest.approx(22.01), pytest.approx(43.0)]  # the longer airborne segment
 
-    def diagnose(out, overrides=(), estimates=None):
+    def diagnose(out, overrides=(), estimates=None, reports=(report,)):
         said = []
-        doc = run_diagnosis([path], vf, tmp_path / out, list(overrides), reports=[report], estimates=estimates,
-                            figures=False, log=said.append)
+        doc = run_diagnosis([path], vf, tmp_path / out, list(overrides), reports=list(reports) or None,
+                            estimates=estimates, figures=False, log=said.append)
         return doc, [m for m in said if m.startswith("estimates of")]
 
     own, said_own = diagnose("own")
     read, said_read = diagnose("read", estimates=[xfit])
+    cli, said_cli = diagnose("cli", reports=())
     assert len(said_read) == 2 and all(m.endswith("read from the filter stage") for m in said_read)
-    assert all("filter=auto" in m for m in said_own)
+    assert all("filter=auto" in m for m in said_own + said_cli)
     assert json.dumps(own, sort_keys=True) == json.dumps(read, sort_keys=True)
+    out_of = {"flights", "out"}  # the command line's doc differs only where it names its own output
+    assert json.dumps({k: v for k, v in cli.items() if k not in out_of}, sort_keys=True) == \
+        json.dumps({k: v for k, v in read.items() if k not in out_of}, sort_keys=True)
     _, said_other = diagnose("other", ["filter.smoother=false"], estimates=[xfit])
     assert len(said_other) == 2 and not any("read from" in m for m in said_other)
     # the rollout of qr evaluate too (its start states: position, velocity, attitude, rate)

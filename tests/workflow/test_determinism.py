@@ -47,3 +47,25 @@ def test_two_full_runs_give_identical_state_tables(clean, faulted):
         for rel in files:
             pd.testing.assert_frame_equal(pd.read_parquet(clean / rel), pd.read_parquet(faulted["results"] / rel),
                                           check_exact=True, obj=str(rel))
+
+
+def test_the_report_opens_on_the_overview(clean):
+    """`snakemake --report` on a finished run: its landing page (workflow/report/workflow.rst) holds the
+    overview — the named effects and the tables, generated, with the style scoped to it."""
+    import html
+    import re
+
+    path = clean.parent
+    wr.snakemake(path, "--report", "report.html", "--configfile", wr.CI_CONFIG, log="report.log", QR_TRACKING="off")
+    text = (path / "report.html").read_text()
+    fragment = (clean / "overview.fragment.html").read_text()
+    named = pd.read_csv(clean / "tables" / "diagnosis_summary.csv")["named"].dropna()
+    first = str(named.iloc[0]).split(";")[0].strip()
+    assert first and first != "none"
+    # the report embeds its landing page as a JSON string: compare on unescaped text
+    landing = html.unescape(text.encode().decode("unicode_escape", errors="ignore"))
+    assert "qr-overview" in landing and first in landing
+    assert first in fragment and "<body" not in fragment
+    style = re.search(r"<style>(.*?)</style>", fragment, re.S).group(1)
+    assert all(line.startswith(".qr-overview") or ":has(.qr-overview)" in line
+               for line in style.strip().splitlines())

@@ -43,3 +43,9 @@ def test_the_overview_page_leads_with_the_named_effects_and_holds_every_table_an
     assert len(imgs) == 1 and base64.b64decode(imgs[0]) == png.read_bytes()
     assert "<figcaption>Rollout, brushless: MAE against h</figcaption>" in text and "never made" not in text
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".") or "tmp" in p.name] == []
+    # the landing page of Snakemake's report: the same body in a div, its style scoped to the div
+    frag = (tmp_path / "overview.fragment.html").read_text()
+    body = re.search(r"<body>(.*)</body>", text, re.S).group(1)
+    assert re.sub(r"<style>.*?</style>", "", frag, flags=re.S) == f'<div class="qr-overview">{body}</div>'
+    rules = re.search(r"<style>(.*?)</style>", frag, re.S).group(1).strip().splitlines()
+    assert rules and all(r.startswith(".qr-overview") or ":has(.qr-overview)" in r for r in rules)

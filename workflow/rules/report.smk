@@ -14,6 +14,7 @@ rule overview:
         sim=[rules.simulate.output.tracking, rules.simulate.output.rmse],
     output:
         report("results/overview.html", caption="../report/overview.rst", category="0. Overview"),
+        fragment="results/overview.fragment.html",  # the report's landing page (workflow.rst)
     log:
         "results/logs/report/overview.log",
     params:

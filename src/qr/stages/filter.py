@@ -18,6 +18,7 @@ from pathlib import Path
 from .. import tracking
 from ..atomic import atomic_path, write_json
 from ..config import compose, hydra_app, to_dict, vehicle_path
+from ..diagnose.crossfit import airborne_tuning, fixed_settings
 from ..errors import QrInputError
 from ..estimation import estimate
 from ..flight import read_flight
@@ -61,7 +62,11 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     vehicle = load_vehicle(vehicle_file) if vehicle_file else None
     cfg = {k: v for k, v in filter_cfg.items() if k not in ("flight", "out", "vehicle")}
     start = time.perf_counter()
-    states, report = estimate(flight, vehicle, cfg, progress=progress, source=str(flight_path))
+    tuning = airborne_tuning(flight, vehicle, cfg, progress)
+    states, report = estimate(flight, vehicle, fixed_settings(cfg, tuning), progress=progress,
+                              source=str(flight_path))
+    if tuning is not None:  # the whole flight filtered with the values tuned on its airborne rows
+        report.update({k: tuning[k] for k in ("tuning", "tuned_on_s", "nis_note")})
     seconds = time.perf_counter() - start
     report["flight"] = name
     report["config"] = cfg
