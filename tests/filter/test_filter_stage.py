@@ -152,14 +152,14 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     assert sorted(table["part"].unique()) == ["even", "full", "odd"]
     assert report["tuned_on_s"] == [pytest.approx(22.01), pytest.approx(43.0)]  # the longer airborne segment
 
-    def diagnose(out, overrides=(), estimates=None, reports=(report,)):
+    def diagnose(out, overrides=(), estimates=None, reports=(report,), **kw):
         said = []
         doc = run_diagnosis([path], vf, tmp_path / out, list(overrides), reports=list(reports) or None,
-                            estimates=estimates, figures=False, log=said.append)
+                            estimates=estimates, figures=False, log=said.append, **kw)
         return doc, [m for m in said if m.startswith("estimates of")]
 
     own, said_own = diagnose("own")
-    read, said_read = diagnose("read", estimates=[xfit])
+    (read, res), said_read = diagnose("read", estimates=[xfit], return_result=True)
     cli, said_cli = diagnose("cli", reports=())
     assert len(said_read) == 2 and all(m.endswith("read from the filter stage") for m in said_read)
     assert all("filter=auto" in m for m in said_own + said_cli)
@@ -169,6 +169,16 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
         json.dumps({k: v for k, v in read.items() if k not in out_of}, sort_keys=True)
     _, said_other = diagnose("other", ["filter.smoother=false"], estimates=[xfit])
     assert len(said_other) == 2 and not any("read from" in m for m in said_other)
+    # the learning data set is labelled from the same estimates: its f_a and tau_a are the diagnosis's
+    from qr.stages.learn import build_dataset
+
+    table = build_dataset([xfit], ["gap"], vf, tmp_path / "dataset.parquet")
+    prep = res["prep"]
+    test = np.flatnonzero(prep.test)
+    rows = pd.DataFrame({"t": prep.t[test]}).merge(table.reset_index(), on="t", how="left")
+    assert rows["index"].notna().all() and len(test) > 1000
+    label = table[[f"{g}.{a}" for g in ("f_a", "tau_a") for a in "xyz"]].to_numpy()[rows["index"].astype(int)]
+    np.testing.assert_allclose(label, prep.y[test], rtol=1e-9, atol=1e-12)
     # the rollout of qr evaluate too (its start states: position, velocity, attitude, rate)
     from qr.stages.evaluate import run_evaluation
 

@@ -11,7 +11,8 @@ LEARN = config.get("learn", {})
 
 rule learn_dataset:
     input:
-        states=lambda wc: flights_of(wc.set, rules.filter.output.states),
+        # the full-flight estimates of the cross-fit files: the states the diagnosis labels from
+        estimates=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         vehicle=lambda wc: vehicle_file(wc.set),
     output:
         "results/learn/{set}/dataset.parquet",

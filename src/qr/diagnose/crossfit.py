@@ -167,6 +167,15 @@ class Estimates:
         return out[0], (out[1], out[2])
 
 
+def full_estimates(path) -> pd.DataFrame:
+    """The full-flight ("full") estimates of every segment in a cross-fit file, in time order: the state
+    table the diagnosis builds its labels from (matched settings, matched rotor signals), which the
+    learning data set uses too, so both learn the same ``f_a`` and ``tau_a``."""
+    table = pd.read_parquet(path)
+    full = table[table["part"] == "full"].drop(columns=["segment_start", "part"])
+    return full.sort_values("t", kind="stable").reset_index(drop=True)
+
+
 def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, report: dict, vehicle) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq

@@ -27,6 +27,7 @@ from the rotor map's, as on the Crazyflie logs).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import ClassVar
 
 import numpy as np
@@ -147,6 +148,13 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
     return None
 
 
+@lru_cache(maxsize=None)
+def wald_limit(t: float, k: int) -> float:
+    """The chi-square quantile of the two-sided normal tail beyond ``t``, for ``k`` parameters (cached:
+    the selection asks it a thousand times)."""
+    return float(chi2.isf(2 * norm.sf(t), k))
+
+
 def pinned_down(stats: BlockStats, effects: list[str], cfg: SelectionConfig) -> str | None:
     """Does the joint fit pin every effect down: its parameters jointly ``t_name`` s.e. from neutral?
 
@@ -166,8 +174,7 @@ def pinned_down(stats: BlockStats, effects: list[str], cfg: SelectionConfig) -> 
         k = sl.stop - sl.start
         wald = float(theta[sl] @ np.linalg.pinv(np.atleast_2d(np.cov(reps[:, sl], rowvar=False)),
                                                  hermitian=True) @ theta[sl])
-        # the chi-square quantile of the two-sided normal tail beyond t_name, for k parameters
-        limit = float(chi2.isf(2 * norm.sf(cfg.t_name), k))
+        limit = wald_limit(cfg.t_name, k)
         if wald < limit:
             return (f"not pinned down beside {', '.join(x for x in effects if x != e)}: jointly within "
                     f"{cfg.t_name:g} s.e. of no effect (Wald {wald:.1f} < {limit:.1f})")

@@ -21,5 +21,6 @@ def save(fig, path: str | Path, tight: bool = True) -> None:
     plt.close(fig)
 
 
-def subplots(*args, **kwargs):
-    return plt.subplots(*args, **kwargs)
+def subplots(*args, grid: bool = True, **kwargs):
+    with plt.rc_context({"axes.grid": grid}):
+        return plt.subplots(*args, **kwargs)

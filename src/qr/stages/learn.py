@@ -53,6 +53,19 @@ LEARN_KEYS = ("target", "inputs", "dataset", "row")  # the config group `learn` 
 LOGGED = ("split", "model", "seed")
 
 
+def build_dataset(crossfit_files, names, vehicle_file, out) -> pd.DataFrame:
+    """The learning table of a flight set from the filter stage's cross-fit files (their full-flight
+    estimates: the states and matched rotor signals the diagnosis labels too), written to ``out``."""
+    from .. import datasets
+    from ..diagnose.crossfit import full_estimates
+    from ..vehicle import load_vehicle
+
+    states = {name: full_estimates(path) for name, path in zip(names, crossfit_files)}
+    table = datasets.build_table(states, load_vehicle(vehicle_file))
+    datasets.write_table(table, out)
+    return table
+
+
 def evaluate(model, X, y, target: str) -> dict:
     """Test metrics of ``model`` on ``(X, y)`` (see the module doc)."""
     axes = [f"{target[0]}_{c}" if target == "f_a" else f"tau_{c}" for c in datasets.TARGETS[target]]
