@@ -30,8 +30,78 @@ def _compose_once(overrides: tuple):
     from hydra import compose as _compose
     from hydra import initialize_config_dir
 
+    register_schemas()
     with initialize_config_dir(CONF_DIR, version_base="1.3"):
         return _compose("config", overrides=list(overrides))
+
+
+def schemas() -> dict:
+    """Config group -> the dataclass that is its structured config (Hydra's ConfigStore, name ``schema``):
+    the one place its keys, types, defaults and allowed values are written (the YAML file of the group
+    only selects it)."""
+    from .diagnose.settings import DiagnoseNode
+    from .rollout import EvaluateNode
+
+    return {"diagnose": DiagnoseNode, "evaluate": EvaluateNode}
+
+
+@functools.lru_cache(maxsize=1)
+def register_schemas() -> None:
+    from hydra.core.config_store import ConfigStore
+
+    cs = ConfigStore.instance()
+    for group, node in schemas().items():
+        cs.store(group=group, name="schema", node=node)
+
+
+def _allowed(key: str):
+    """The declared field (its :class:`qr.allowed.Allowed` and default) of a structured key, or None."""
+    from dataclasses import MISSING, fields, is_dataclass
+
+    group, *path = key.split(".")
+    cls = schemas().get(group)
+    for i, name in enumerate(path):
+        f = next((f for f in fields(cls) if f.name == name), None) if cls is not None and is_dataclass(cls) else None
+        if f is None:
+            return None
+        if i < len(path) - 1:
+            cls = f.default_factory if f.default_factory is not MISSING else None
+            continue
+        default = f.default if f.default_factory is MISSING else f.default_factory()
+        import inspect
+
+        source = Path(inspect.getsourcefile(cls)).resolve()
+        return f.metadata.get("allowed"), default, str(source.relative_to(ROOT) if source.is_relative_to(ROOT)
+                                                       else source)
+    return None
+
+
+def _type_error(e: Exception, overrides: list[str]):
+    """A structured config's type error as qr's own one line (key, value as written, allowed values)."""
+    import yaml
+    from omegaconf.errors import ValidationError
+
+    from .errors import QrInputError
+
+    while e is not None and not isinstance(e, ValidationError):
+        e = e.__cause__ or e.__context__
+    if e is None:
+        return None
+    key = str(getattr(e, "full_key", "") or "")
+    raw = next((o.split("=", 1)[1] for o in overrides if "=" in o and o.split("=", 1)[0].lstrip("+~") == key), None)
+    found = _allowed(key)
+    if not key or raw is None or found is None or found[0] is None:
+        return None
+    allowed, default, source = found
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        value = raw
+    try:
+        allowed.check(key, value, default, source)
+    except QrInputError as mine:
+        return mine
+    return QrInputError(key, f"{raw!r} is not allowed", f"give {key} {allowed.describe()}")
 
 
 def to_dict(cfg) -> dict:
@@ -66,6 +136,9 @@ def compose_stage(overrides, stage: str, example: str):
         if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
             cfg = compose(overrides + [f"filter={cfg[stage].filter}"])
     except Exception as e:  # Hydra's errors are long; the first line says what is wrong
+        mine = _type_error(e, overrides)
+        if mine is not None:
+            raise mine from None
         raise QrInputError("overrides", str(e).strip().splitlines()[0],
                            f"use KEY=VALUE for keys in conf/ (e.g. {example}, filter=auto)") from None
     return cfg
@@ -92,4 +165,5 @@ def hydra_app(stage: str, task) -> None:
             print(f"qr {stage}: error: {e}", file=sys.stderr)
             sys.exit(EXIT_BAD_INPUT)
 
+    register_schemas()
     hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

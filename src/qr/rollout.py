@@ -30,7 +30,7 @@ from .frames_compiled import cross, quat_angle, quat_to_R
 from .sim.plant import N_P, P_DELAY, P_MARKER, rigid_body_deriv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
-DEFAULTS_FILE = "conf/evaluate/default.yaml"
+DEFAULTS_FILE = "src/qr/rollout.py"
 QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
 MODEL, HOLD, RATE_FROZEN = 0, 1, 2
 
@@ -231,9 +231,10 @@ def at(block: dict, h: int, q: str):
 @dataclass
 class EvaluateConfig:
     KEY: ClassVar[str] = "evaluate"
-    horizon: int = setting(50, "integer", ge=1, le=100_000)
+    horizon: int = setting(50, "integer", ge=1, le=100_000)  # H: steps of the log's sample period
+    # windows whose rotor speeds miss more than this many samples in a row are skipped
     max_input_gap: int = setting(2, "integer", ge=0)
-    trim_s: float = setting(0.5, ge=0)
+    trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (as qr diagnose's)
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
@@ -243,6 +244,13 @@ class EvaluateConfig:
         d = {k: v for k, v in dict(d or {}).items() if k != "filter"}  # (filter: read by _compose)
         check_known(cls.KEY, d, cls, DEFAULTS_FILE)
         return cls(**d)
+
+
+@dataclass
+class EvaluateNode(EvaluateConfig):
+    """The config group ``evaluate`` (structured; ``conf/evaluate/default.yaml`` selects it)."""
+
+    filter: str = "auto"  # the estimate the windows start from (as qr diagnose's)
 
 
 def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:

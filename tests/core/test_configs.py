@@ -27,3 +27,39 @@ def test_experiments_merge_in_the_order_given():
     assert d.train_fraction == base.train_fraction and d.candidates == base.candidates
     swapped = compose(["+experiment=[per_flight,crazyflie_short_flights]"]).diagnose
     assert swapped.block_s == 1.0 and swapped.trim_s == 0.3
+
+
+@pytest.mark.parametrize("group", ["diagnose", "evaluate"])
+def test_structured_groups_write_their_defaults_once(group):
+    """The group's YAML only selects its structured config: every default comes from the dataclass (one
+    place), and a key the dataclass lacks is refused when the config is composed."""
+    import dataclasses
+
+    import yaml
+
+    from qr.config import schemas, to_dict
+    from qr.errors import QrInputError
+    from qr.config import compose_stage
+
+    doc = yaml.safe_load((ROOT / "conf" / group / "default.yaml").read_text())
+    assert doc == {"defaults": ["schema", "_self_"]}
+    assert to_dict(compose([])[group]) == dataclasses.asdict(schemas()[group]())
+    with pytest.raises(QrInputError, match=f"{group}.no_such_key"):
+        compose_stage([f"{group}.no_such_key=1"], group, "x")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("evaluate.horizon=abc", "evaluate.horizon: 'abc' is not an integer; fix: give evaluate.horizon an integer in "
+                             "[1, 100000], e.g. evaluate.horizon=50 (the default, src/qr/rollout.py)"),
+    ("diagnose.selection.beam=1.5", "diagnose.selection.beam: 1.5 is not an integer"),
+    ("diagnose.exclude=cg_offset", "diagnose.exclude: 'cg_offset' is not a list (write [cg_offset])"),
+])
+def test_a_type_error_of_a_structured_key_is_one_line_naming_key_value_and_range(override, message):
+    """OmegaConf refuses the type when the config is composed; the error is qr's line, not Hydra's."""
+    from qr.config import compose_stage
+    from qr.errors import QrInputError
+
+    stage = override.split(".")[0]
+    with pytest.raises(QrInputError) as e:
+        compose_stage([override], stage, "x")
+    assert message in str(e.value) and "\n" not in str(e.value)

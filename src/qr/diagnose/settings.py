@@ -1,4 +1,6 @@
-"""The settings of ``qr diagnose`` (``conf/diagnose/default.yaml``), each with its allowed values.
+"""The settings of ``qr diagnose``, each with its default and allowed values: the one place they are
+written.  :class:`DiagnoseNode` is the config group ``diagnose``'s structured config (registered in
+Hydra's ConfigStore by :func:`qr.config.register_schemas`; ``conf/diagnose/default.yaml`` selects it).
 
 Every field declares its type and range once, beside it (:func:`qr.allowed.setting`), and
 one function (:func:`qr.allowed.check_fields`) holds the values to them, so a wrong override
@@ -16,7 +18,7 @@ from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
 from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
 
-DEFAULTS_FILE = "conf/diagnose/default.yaml"
+DEFAULTS_FILE = "src/qr/diagnose/settings.py"
 
 
 def _catalog() -> list[str]:
@@ -39,18 +41,22 @@ def _remainder_groups() -> list[str]:
 @dataclass
 class DiagnoseConfig:
     KEY: ClassVar[str] = "diagnose"
-    horizon_s: float = setting(1.0, gt=0)
-    train_fraction: float = setting(0.7, gt=0, lt=1)
-    gap_s: float = setting(1.0, ge=0)
-    block_s: float = setting(2.0, gt=0)
-    trim_s: float = setting(0.5, ge=0)
+    horizon_s: float = setting(1.0, gt=0)  # the open-loop replay restarts every horizon_s
+    train_fraction: float = setting(0.7, gt=0, lt=1)  # the first 70 % of each flight trains, the rest is held out
+    gap_s: float = setting(1.0, ge=0)  # ... with this gap between them (filter smoothing correlates neighbours)
+    block_s: float = setting(2.0, gt=0)  # blocks for cross-validation and the block bootstrap
+    trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (segment)
+    # null: the whole catalog; or a list of effect names
     candidates: list[str] | None = setting(None, "names", names=_catalog, null="the whole catalog", nonempty=True)
+    # effects never to name (e.g. one fixed by an earlier diagnosis)
     exclude: list[str] = setting(kind="names", names=_catalog, default_factory=list)
-    selection: SelectionConfig = field(default_factory=SelectionConfig)
+    selection: SelectionConfig = field(default_factory=SelectionConfig)  # qr.identification.selection
+    # the check for structure beyond the catalog: a linear model on these input groups of the remainder,
+    # reported when it removes at least remainder_min_gain of the held-out residual variance
     remainder_inputs: list[str] = setting(kind="names", names=_remainder_groups, reasons=_leaking_groups,
                                           nonempty=True, default_factory=lambda: ["v_b", "u", "q", "omega", "p"])
     remainder_min_gain: float = setting(0.05, ge=0, le=1)
-    delay_max_s: float = setting(0.1, gt=0, le=MAX_DELAY_S)
+    delay_max_s: float = setting(0.1, gt=0, le=MAX_DELAY_S)  # the actuator delay searched up to this
     # > 0: fit a learned torque remainder (qr.torque_remainder) with this ridge, written into the
     # extended vehicle and rolled out as the "hybrid"; 0: none
     torque_remainder_ridge: float = setting(0.0, ge=0)
@@ -80,3 +86,12 @@ class DiagnoseConfig:
         names = {f.name for f in fields(cls)}
         known = {k: v for k, v in d.items() if k in names}  # (filter, track: read elsewhere)
         return cls(selection=SelectionConfig(**sel), **known)
+
+
+@dataclass
+class DiagnoseNode(DiagnoseConfig):
+    """The config group ``diagnose``: the settings, and the keys read before them."""
+
+    filter: str = "auto"  # the filter config (conf/filter/) the flights are estimated with
+    track: bool = False  # an MLflow run (the workflow turns it on; the CLI writes nothing outside OUTDIR)
+

@@ -59,7 +59,7 @@ ROWS = {"force": (0, 1, 2), "torque": (3, 4, 5), "roll_pitch": (3, 4)}
 
 @dataclass
 class SelectionConfig:
-    """``diagnose.selection`` (conf/diagnose/default.yaml); each field with its allowed values."""
+    """``diagnose.selection``; each field with its default and allowed values (the one place)."""
 
     KEY: ClassVar[str] = "diagnose.selection"
     folds: int = setting(5, "integer", ge=2)
@@ -87,7 +87,7 @@ class SelectionConfig:
     seed: int = setting(0, "integer", ge=0)
 
     def __post_init__(self):
-        check_fields(self, lambda name: f"{self.KEY}.{name}", "conf/diagnose/default.yaml")
+        check_fields(self, lambda name: f"{self.KEY}.{name}", "src/qr/identification/selection.py")
 
 
 @dataclass
