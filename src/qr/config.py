@@ -40,9 +40,10 @@ def schemas() -> dict:
     the one place its keys, types, defaults and allowed values are written (the YAML file of the group
     only selects it)."""
     from .diagnose.settings import DiagnoseNode
+    from .estimation.settings import FilterNode
     from .rollout import EvaluateNode
 
-    return {"diagnose": DiagnoseNode, "evaluate": EvaluateNode}
+    return {"diagnose": DiagnoseNode, "evaluate": EvaluateNode, "filter": FilterNode}
 
 
 @functools.lru_cache(maxsize=1)
@@ -90,8 +91,13 @@ def _type_error(e: Exception, overrides: list[str]):
     key = str(getattr(e, "full_key", "") or "")
     raw = next((o.split("=", 1)[1] for o in overrides if "=" in o and o.split("=", 1)[0].lstrip("+~") == key), None)
     found = _allowed(key)
-    if not key or raw is None or found is None or found[0] is None:
+    if not key or raw is None or found is None:
         return None
+    if found[0] is None:  # a field without declared values (a switch, a name): OmegaConf's own words
+        what = str(getattr(e, "msg", "") or str(e)).strip().splitlines()[0]
+        return QrInputError(key, what.replace(f"'{raw}' of type 'str' ", f"'{raw}' ") if what else f"{raw!r} is not allowed",
+                            f"e.g. {key}={found[1]!r} (the default, {found[2]})".replace("True", "true")
+                            .replace("False", "false"))
     allowed, default, source = found
     try:
         value = yaml.safe_load(raw)
@@ -166,4 +172,13 @@ def hydra_app(stage: str, task) -> None:
             sys.exit(EXIT_BAD_INPUT)
 
     register_schemas()
+    args = sys.argv[1:]
+    if not any(a.startswith("-") for a in args):  # a single run (not a sweep, --cfg, --help): a wrong type of
+        try:                                      # a structured key is qr's one line, not Hydra's block
+            compose(args)
+        except Exception as e:
+            mine = _type_error(e, args)
+            if mine is not None:
+                print(f"qr {stage}: error: {mine}", file=sys.stderr)
+                sys.exit(EXIT_BAD_INPUT)
     hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

@@ -63,3 +63,24 @@ def test_a_type_error_of_a_structured_key_is_one_line_naming_key_value_and_range
     with pytest.raises(QrInputError) as e:
         compose_stage([override], stage, "x")
     assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_a_switch_of_the_wrong_type_is_one_line_too():
+    from qr.config import compose_stage
+    from qr.errors import QrInputError
+
+    with pytest.raises(QrInputError) as e:
+        compose_stage(["filter.smoother=abc"], "diagnose", "x")
+    assert str(e.value).startswith("filter.smoother: Value 'abc' is not a valid bool")
+    assert "filter.smoother=false (the default, src/qr/estimation/settings.py)" in str(e.value)
+
+
+def test_a_hydra_stage_gives_the_type_error_as_one_line_before_hydra_runs(tmp_path):
+    """`qr filter` is a Hydra app: Hydra would print its override error as a block; qr's line comes first."""
+    import subprocess
+    import sys
+
+    res = subprocess.run([sys.executable, "-m", "qr.filter", f"filter.flight={tmp_path / 'f.csv'}",
+                          "filter.nis.confidence=abc"], capture_output=True, text=True, cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.strip().count("\n") == 0
+    assert res.stderr.startswith("qr filter: error: filter.nis.confidence: 'abc' is not a number")

@@ -115,8 +115,13 @@ def test_exact_eskf_transition_is_the_matrix_exponential():
 
 
 def test_thesis_config_is_the_library_default():
-    """conf/filter/thesis.yaml and qr.estimation.DEFAULTS say the same (and carry the printed numbers)."""
-    conf = yaml.safe_load((ROOT / "conf" / "filter" / "thesis.yaml").read_text())
+    """filter=thesis composes to qr.estimation.DEFAULTS, written once (the structured config FilterNode:
+    conf/filter/thesis.yaml only selects it), and they carry the printed numbers."""
+    from qr.config import compose, to_dict
+
+    assert yaml.safe_load((ROOT / "conf" / "filter" / "thesis.yaml").read_text()) == \
+        {"defaults": ["schema", "_self_"], "name": "thesis"}
+    conf = to_dict(compose(["filter=thesis"]))["filter"]
     assert conf == settings.DEFAULTS
     assert conf["position"] == {"q": 100 * 0.1, "r": 0.0002**2}
     assert (conf["attitude"]["q"], conf["attitude"]["r"]) == ([500.0, 50.0, 500.0], 0.001**2)

@@ -1,15 +1,17 @@
-"""Filter settings: the ``filter`` config group as a validated dict.
-
-``DEFAULTS`` mirrors ``conf/filter/thesis.yaml`` (a test keeps them equal), so
-library callers need no Hydra.  Any mistake is one :class:`QrInputError` line.
+"""Filter settings: the ``filter`` config group, its defaults written once (:class:`FilterNode`, Hydra's
+structured config for the group; ``conf/filter/thesis.yaml`` selects it, ``smoother.yaml`` and
+``auto.yaml`` override some keys), and :func:`resolve`, which checks a group as a plain dict, so library
+callers need no Hydra.  Any mistake is one :class:`QrInputError` line.
 """
 
 from __future__ import annotations
 
 import copy
 import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Optional
 
-from ..allowed import allowed
+from ..allowed import setting
 from ..errors import QrInputError
 from . import attitude_eskf, motor_kf, position_kf
 from .chain import DISCRETISATIONS
@@ -17,30 +19,80 @@ from .chain import DISCRETISATIONS
 FILTERS = ("position", "attitude", "motor")
 IMPLEMENTATIONS = ("fast", "reference")
 
-DEFAULTS = {
-    "name": "thesis",
-    "implementation": "fast",
-    "smoother": False,
-    "discretisation": "thesis",
-    "position": {"q": position_kf.THESIS_Q, "r": position_kf.THESIS_R},
-    "attitude": {"q": attitude_eskf.THESIS_Q.tolist(), "r": attitude_eskf.THESIS_R,
-                 "reset_deg": attitude_eskf.RESET_DEG, "gyro": False},
-    "motor": {"q": motor_kf.THESIS_Q, "r": motor_kf.THESIS_R},
-    "tune": {"enabled": False, "min_corner_hz": 0.05, "grid": 13, "rounds": 2, "max_samples": 60000},
-    "nis": {"confidence": 0.95, "burn_in_s": 1.0},
-    "flight": None,  # input, output and vehicle of `qr filter`; ignored by estimate()
-    "out": None,
-    "vehicle": None,
-}
-FIX = "see conf/filter/thesis.yaml for the keys and their meaning"
-RANGES = {
-    ("nis", "confidence"): allowed(gt=0, lt=1),
-    ("nis", "burn_in_s"): allowed(ge=0),
-    ("tune", "min_corner_hz"): allowed(gt=0),
-    ("tune", "max_samples"): allowed("integer", ge=100),
-    ("tune", "grid"): allowed("integer", ge=3),
-    ("tune", "rounds"): allowed("integer", ge=1),
-}
+
+# q and r: a number (or attitude q: one or three); Any, since qr's own check (resolve) says what is wrong
+@dataclass
+class PositionSettings:
+    """KF on [p, v, a, j] (thesis eqs. 4.4-4.10)."""
+
+    q: Any = position_kf.THESIS_Q  # eq. 4.6a: Q = 100 [[0, 0], [0, 0.1 I3]] on the jerk
+    r: Any = position_kf.THESIS_R  # eq. 4.6b: R = 0.0002^2 I3 (m^2)
+
+
+@dataclass
+class AttitudeSettings:
+    """ESKF on [q, w, alpha, alpha_dot] (eqs. 4.11-4.27), rates in the world frame."""
+
+    # eq. 4.16a: Q = 500 diag(1, 0.1, 1) on alpha_ddot; Qd = G Q G^T dt^2 (4.20)
+    q: Any = field(default_factory=lambda: attitude_eskf.THESIS_Q.tolist())
+    r: Any = attitude_eskf.THESIS_R  # eq. 4.16b: R_nu = 0.001^2 I3 (rad^2)
+    # not in the thesis: restart the ESKF at the next measurement when the innovation angle or the
+    # predicted rotation between samples exceeds this (track lost: the log map aliases); null: never
+    reset_deg: Any = attitude_eskf.RESET_DEG
+    gyro: bool = False  # not in the thesis: fuse the log's gyro (gx, gy, gz) where it has one
+
+
+@dataclass
+class MotorSettings:
+    """One KF per rotor on [u, u_dot, u_ddot] (eqs. 4.28-4.33)."""
+
+    q: Any = motor_kf.THESIS_Q  # eq. 4.31a: Q = 10000 diag(0, 0, 0.1)
+    r: Any = motor_kf.THESIS_R  # eq. 4.31b: R = 1 ((rotor speed unit)^2)
+
+
+@dataclass
+class TuneSettings:
+    """Likelihood search of q and r per filter (filter=auto)."""
+
+    enabled: bool = False
+    min_corner_hz: float = setting(0.05, gt=0)  # lowest bandwidth searched (the highest is Nyquist)
+    grid: int = setting(13, "integer", ge=3)  # log-spaced bandwidths tried before the Brent refinement
+    rounds: int = setting(2, "integer", ge=1)
+    # longer flights (segments) are tuned on their middle max_samples (the noise is stationary)
+    max_samples: int = setting(60000, "integer", ge=100)
+
+
+@dataclass
+class NisSettings:
+    confidence: float = setting(0.95, gt=0, lt=1)  # chi-square band of the NIS mean; outside: flagged
+    burn_in_s: float = setting(1.0, ge=0)  # initial transient left out of NIS and likelihood
+
+
+@dataclass
+class FilterNode:
+    """The ``filter`` group: the thesis's three filters (§4.2.1), matrices as printed, forward only."""
+
+    name: str = "thesis"
+    implementation: str = "fast"  # fast (compiled) | reference (filterpy; slow, same numbers to 1e-9)
+    smoother: bool = False  # true: Rauch-Tung-Striebel backward pass (zero lag, smaller errors)
+    # thesis: Q as printed, added once per sample | exact: q a white-noise intensity, Q(dt) integrated
+    discretisation: str = "thesis"
+    position: PositionSettings = field(default_factory=PositionSettings)
+    attitude: AttitudeSettings = field(default_factory=AttitudeSettings)
+    motor: MotorSettings = field(default_factory=MotorSettings)
+    tune: TuneSettings = field(default_factory=TuneSettings)
+    nis: NisSettings = field(default_factory=NisSettings)
+    flight: Optional[str] = None  # qr filter only: the input flight (canonical CSV or Parquet)
+    out: Optional[str] = None  # qr filter only: the state table (default <results>/filter/<name>.parquet)
+    vehicle: Optional[str] = None  # qr filter only: vehicle name or YAML (default: the root `vehicle`)
+
+
+DEFAULTS = asdict(FilterNode())
+SOURCE = "src/qr/estimation/settings.py"
+FIX = f"see {SOURCE} (FilterNode) for the keys and their meaning"
+# the ranges declared on the fields above, by (group, key)
+RANGES = {(g.name, f.name): f.metadata["allowed"] for g in fields(FilterNode) if g.name in ("tune", "nis")
+          for f in fields(g.default_factory) if "allowed" in f.metadata}
 
 
 def _bad(problem: str, fix: str = FIX) -> QrInputError:
@@ -85,8 +137,7 @@ def resolve(cfg: dict | None) -> dict:
     if s["attitude"]["reset_deg"] is not None:
         s["attitude"]["reset_deg"] = _positive(s["attitude"]["reset_deg"], "attitude.reset_deg")
     for (group, key), rule in RANGES.items():
-        s[group][key] = rule.check(f"filter.{group}.{key}", s[group][key], DEFAULTS[group][key],
-                                   "conf/filter/thesis.yaml")
+        s[group][key] = rule.check(f"filter.{group}.{key}", s[group][key], DEFAULTS[group][key], SOURCE)
     if s["tune"]["enabled"] and s["discretisation"] != "exact":
         raise _bad("tune.enabled needs discretisation: exact (q as a noise intensity, valid at any dt)",
                    "use filter=auto, or set filter.discretisation=exact")
