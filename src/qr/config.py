@@ -46,6 +46,13 @@ def schemas() -> dict:
     return {"diagnose": DiagnoseNode, "evaluate": EvaluateNode, "filter": FilterNode}
 
 
+def kind_schemas() -> dict:
+    """Groups whose options differ per kind: group -> {kind: dataclass} (ConfigStore name ``schema_<kind>``)."""
+    from .datasets import SPLITS
+
+    return {"split": SPLITS}
+
+
 @functools.lru_cache(maxsize=1)
 def register_schemas() -> None:
     from hydra.core.config_store import ConfigStore
@@ -53,6 +60,9 @@ def register_schemas() -> None:
     cs = ConfigStore.instance()
     for group, node in schemas().items():
         cs.store(group=group, name="schema", node=node)
+    for group, kinds in kind_schemas().items():
+        for kind, node in kinds.items():
+            cs.store(group=group, name=f"schema_{kind}", node=node)
 
 
 def _allowed(key: str):
@@ -61,6 +71,9 @@ def _allowed(key: str):
 
     group, *path = key.split(".")
     cls = schemas().get(group)
+    if cls is None and path:  # a kind's option: the first kind that has it
+        cls = next((c for c in kind_schemas().get(group, {}).values() if path[0] in {f.name for f in fields(c)}),
+                   None)
     for i, name in enumerate(path):
         f = next((f for f in fields(cls) if f.name == name), None) if cls is not None and is_dataclass(cls) else None
         if f is None:

@@ -25,8 +25,9 @@ as the best model or handed to the simulation.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pandas as pd
@@ -199,11 +200,40 @@ class Split:
     windows: dict = field(default_factory=dict)  # part -> {flight: [t_start, t_end]} (provenance)
 
 
-SPLIT_DEFAULTS = {
-    "thesis": {"flight": None, "start": 1500, "train": 1500, "test": 1500, "fractions": [0.70, 0.15, 0.15]},
-    "blocked": {"fractions": [0.70, 0.15, 0.15], "gap_s": 1.0},
-    "by_flight": {"fractions": [0.70, 0.15, 0.15], "seed": 0, "val_flights": None, "test_flights": None},
-}
+def _thirds() -> list[float]:
+    return [0.70, 0.15, 0.15]
+
+
+# the config group ``split``: one structured config per kind (Hydra's ConfigStore, ``schema_<kind>``,
+# selected by conf/split/<kind>.yaml), the one place their options and defaults are written
+@dataclass
+class ThesisSplit:
+    kind: str = "thesis"
+    flight: Optional[str] = None  # a flight name; null = the flights one after the other, in table order
+    start: int = 1500  # first training sample
+    train: int = 1500  # training window (samples)
+    test: int = 1500  # test window, right after it
+    fractions: list[float] = field(default_factory=_thirds)  # the training window cut train/val/inner test
+
+
+@dataclass
+class BlockedSplit:
+    kind: str = "blocked"
+    fractions: list[float] = field(default_factory=_thirds)  # shares of each flight's duration (after the gaps)
+    gap_s: float = 1.0  # seconds left out between blocks (filter smoothing and autocorrelation)
+
+
+@dataclass
+class ByFlightSplit:
+    kind: str = "by_flight"
+    fractions: list[float] = field(default_factory=_thirds)  # train / validation / test share of the flights
+    seed: int = 0  # which flights go where (a permutation of flights, never of samples)
+    val_flights: Optional[list[str]] = None  # or explicit lists of flight names (then fractions and seed
+    test_flights: Optional[list[str]] = None  # are unused)
+
+
+SPLITS = {"thesis": ThesisSplit, "blocked": BlockedSplit, "by_flight": ByFlightSplit}
+SPLIT_DEFAULTS = {kind: {k: v for k, v in asdict(cls()).items() if k != "kind"} for kind, cls in SPLITS.items()}
 
 
 def _split_cfg(cfg) -> tuple[str, dict]:

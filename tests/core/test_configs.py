@@ -84,3 +84,21 @@ def test_a_hydra_stage_gives_the_type_error_as_one_line_before_hydra_runs(tmp_pa
                           "filter.nis.confidence=abc"], capture_output=True, text=True, cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.strip().count("\n") == 0
     assert res.stderr.startswith("qr filter: error: filter.nis.confidence: 'abc' is not a number")
+
+
+@pytest.mark.parametrize("kind", ["thesis", "blocked", "by_flight"])
+def test_each_split_kind_is_its_structured_config(kind):
+    """conf/split/<kind>.yaml writes no default; an option of another kind is refused when composed."""
+    import dataclasses
+
+    import yaml
+
+    from qr.config import to_dict
+    from qr.datasets import SPLITS
+
+    doc = yaml.safe_load((ROOT / "conf" / "split" / f"{kind}.yaml").read_text())
+    assert doc == {"defaults": [f"schema_{kind}", "_self_"]}
+    assert to_dict(compose([f"split={kind}"]).split) == dataclasses.asdict(SPLITS[kind]())
+    other = "gap_s" if kind != "blocked" else "seed"
+    with pytest.raises(Exception, match=other):
+        compose([f"split={kind}", f"split.{other}=1"])
