@@ -38,26 +38,48 @@ MODEL, HOLD, RATE_FROZEN = 0, 1, 2
 @nb.njit(cache=True)
 def _step(x, u, P, frozen, dt, zero):
     """One RK4 step of p, v, q, ω; ``frozen``: ω held (no angular acceleration)."""
-    k = np.empty((4, 13))
+    k = np.empty((4, 13))  # (element loops, not array expressions: no temporaries in the inner loop)
     xs = x.copy()
+    xn = np.empty(13)
     for s in range(4):
-        if s == 1 or s == 2:
-            xs = x + 0.5 * dt * k[s - 1]
-        elif s == 3:
-            xs = x + dt * k[2]
-        d = np.empty(13)
-        rigid_body_deriv(xs, u, P, zero, zero, d)
+        if s > 0:
+            c = dt if s == 3 else 0.5 * dt
+            for j in range(13):
+                xs[j] = x[j] + c * k[s - 1, j]
+        rigid_body_deriv(xs, u, P, zero, zero, k[s])
         if frozen:
-            d[10:13] = 0.0
-        k[s] = d
-    xn = x + dt / 6.0 * (k[0] + 2.0 * k[1] + 2.0 * k[2] + k[3])
+            k[s, 10] = k[s, 11] = k[s, 12] = 0.0
+    for j in range(13):
+        xn[j] = x[j] + dt / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
     n = math.sqrt(xn[6] ** 2 + xn[7] ** 2 + xn[8] ** 2 + xn[9] ** 2)
-    xn[6:10] /= n
+    for j in range(6, 10):
+        xn[j] /= n
     return xn
 
 
 STRIDE = 32
 CHUNKS = 16  # fixed, not the thread count: the summation order (and so every digit) is the same anywhere
+
+
+@nb.njit(cache=True)
+def _tracked(x, r):
+    """Position and velocity (world) of the tracked point at body offset ``r``: p + R r, v + R (ω × r)."""
+    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
+    R00 = 1 - 2 * (qy * qy + qz * qz)
+    R01 = 2 * (qx * qy - qw * qz)
+    R02 = 2 * (qx * qz + qw * qy)
+    R10 = 2 * (qx * qy + qw * qz)
+    R11 = 1 - 2 * (qx * qx + qz * qz)
+    R12 = 2 * (qy * qz - qw * qx)
+    R20 = 2 * (qx * qz - qw * qy)
+    R21 = 2 * (qy * qz + qw * qx)
+    R22 = 1 - 2 * (qx * qx + qy * qy)
+    c0 = x[11] * r[2] - x[12] * r[1]
+    c1 = x[12] * r[0] - x[10] * r[2]
+    c2 = x[10] * r[1] - x[11] * r[0]
+    return (x[0] + R00 * r[0] + R01 * r[1] + R02 * r[2], x[1] + R10 * r[0] + R11 * r[1] + R12 * r[2],
+            x[2] + R20 * r[0] + R21 * r[1] + R22 * r[2], x[3] + R00 * c0 + R01 * c1 + R02 * c2,
+            x[4] + R10 * c0 + R11 * c1 + R12 * c2, x[5] + R20 * c0 + R21 * c1 + R22 * c2)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -97,20 +119,19 @@ def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
                     x = xn
                 else:  # diverged: the last sane state stands for the rest (its errors still count)
                     moving = False
-            R = quat_to_R(x[6:10])
-            p = x[0:3] + R @ r
-            v = x[3:6] + R @ cross(x[10:13], r)
+            px, py, pz, vx, vy, vz = _tracked(x, r)
             if np.isfinite(tp[j, 0]):
-                sums[h - 1, 0] += math.sqrt(((p - tp[j]) ** 2).sum())
+                sums[h - 1, 0] += math.sqrt((px - tp[j, 0]) ** 2 + (py - tp[j, 1]) ** 2 + (pz - tp[j, 2]) ** 2)
                 counts[h - 1, 0] += 1
             if np.isfinite(tv[j, 0]):
-                sums[h - 1, 1] += math.sqrt(((v - tv[j]) ** 2).sum())
+                sums[h - 1, 1] += math.sqrt((vx - tv[j, 0]) ** 2 + (vy - tv[j, 1]) ** 2 + (vz - tv[j, 2]) ** 2)
                 counts[h - 1, 1] += 1
             if np.isfinite(tq[j, 0]):
                 sums[h - 1, 2] += quat_angle(tq[j], x[6:10])
                 counts[h - 1, 2] += 1
             if np.isfinite(tw[j, 0]):
-                sums[h - 1, 3] += math.sqrt(((x[10:13] - tw[j]) ** 2).sum())
+                sums[h - 1, 3] += math.sqrt((x[10] - tw[j, 0]) ** 2 + (x[11] - tw[j, 1]) ** 2
+                                            + (x[12] - tw[j, 2]) ** 2)
                 counts[h - 1, 3] += 1
 
 
