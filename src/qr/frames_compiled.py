@@ -30,6 +30,14 @@ def quat_to_R(q):
 
 
 @nb.njit(cache=True)
+def R_entries(q0, q1, q2, q3):
+    """The nine entries of quat_to_R, row by row, as scalars (no array: for the inner loops)."""
+    return (1 - 2 * (q2 * q2 + q3 * q3), 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2),
+            2 * (q1 * q2 + q0 * q3), 1 - 2 * (q1 * q1 + q3 * q3), 2 * (q2 * q3 - q0 * q1),
+            2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), 1 - 2 * (q1 * q1 + q2 * q2))
+
+
+@nb.njit(cache=True)
 def cross(a, b):
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 

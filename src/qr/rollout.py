@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from .allowed import check_fields, check_known, setting
-from .frames_compiled import cross, quat_angle, quat_to_R
+from .frames_compiled import R_entries, cross, quat_angle, quat_to_R
 from .sim.plant import N_P, P_DELAY, P_MARKER, rigid_body_deriv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
@@ -64,16 +64,7 @@ CHUNKS = 16  # fixed, not the thread count: the summation order (and so every di
 @nb.njit(cache=True)
 def _tracked(x, r):
     """Position and velocity (world) of the tracked point at body offset ``r``: p + R r, v + R (ω × r)."""
-    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
-    R00 = 1 - 2 * (qy * qy + qz * qz)
-    R01 = 2 * (qx * qy - qw * qz)
-    R02 = 2 * (qx * qz + qw * qy)
-    R10 = 2 * (qx * qy + qw * qz)
-    R11 = 1 - 2 * (qx * qx + qz * qz)
-    R12 = 2 * (qy * qz - qw * qx)
-    R20 = 2 * (qx * qz - qw * qy)
-    R21 = 2 * (qy * qz + qw * qx)
-    R22 = 1 - 2 * (qx * qx + qy * qy)
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R_entries(x[6], x[7], x[8], x[9])
     c0 = x[11] * r[2] - x[12] * r[1]
     c1 = x[12] * r[0] - x[10] * r[2]
     c2 = x[10] * r[1] - x[11] * r[0]

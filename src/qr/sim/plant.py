@@ -19,7 +19,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..frames_compiled import cross, quat_to_R
+from ..frames_compiled import R_entries, cross, quat_to_R
 
 from ..frames import G
 
@@ -96,16 +96,7 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
     Written out in scalars: the rollout and the simulation call it four times per RK4 step, millions
     of times, and small temporary arrays (and 3 x 3 products through BLAS) cost ten times the
     arithmetic."""
-    qw, qx, qy, qz = x[6], x[7], x[8], x[9]
-    R00 = 1 - 2 * (qy * qy + qz * qz)
-    R01 = 2 * (qx * qy - qw * qz)
-    R02 = 2 * (qx * qz + qw * qy)
-    R10 = 2 * (qx * qy + qw * qz)
-    R11 = 1 - 2 * (qx * qx + qz * qz)
-    R12 = 2 * (qy * qz - qw * qx)
-    R20 = 2 * (qx * qz - qw * qy)
-    R21 = 2 * (qy * qz + qw * qx)
-    R22 = 1 - 2 * (qx * qx + qy * qy)
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R_entries(x[6], x[7], x[8], x[9])
     vx, vy, vz = x[3], x[4], x[5]
     wx, wy, wz = x[10], x[11], x[12]
     vb0 = R00 * vx + R10 * vy + R20 * vz  # v_b = R^T v
