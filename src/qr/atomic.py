@@ -219,6 +219,21 @@ def write_text(dest: str | Path, text: str) -> None:
         tmp.write_text(text)
 
 
+def plain(x):
+    """``x`` with numpy arrays and scalars as Python lists and numbers (for JSON and YAML writers)."""
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {str(k): plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
 def finite_or_null(obj, path: str = "") -> tuple[object, list[str]]:
     """``obj`` with every non-finite float (NaN, ±inf) replaced by None, and the dotted paths replaced."""
     if isinstance(obj, float) and not math.isfinite(obj):

@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from .allowed import is_number
-from .atomic import write_text
+from .atomic import plain, write_text
 from .errors import QrInputError, warn
 from .rotors import RotorMap
 
@@ -262,19 +262,9 @@ def load_vehicle(path: str | Path) -> Vehicle:
 def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None = None) -> None:
     raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
     raw.pop("extends", None)
-    text = yaml.safe_dump(_plain(raw), sort_keys=False, default_flow_style=None)
+    text = yaml.safe_dump(plain(raw), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
     write_text(path, text)
 
 
-def _plain(x):
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    return x

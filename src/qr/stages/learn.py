@@ -118,7 +118,7 @@ def apply_row(cfg: dict) -> dict:
 def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict:
     """One training run from a plain config; returns the run record (also written as JSON)."""
     from .. import models, tracking
-    from ..atomic import MARKER, write_json
+    from ..atomic import MARKER, plain, write_json
 
     cfg = apply_row(cfg)
     learn = cfg["learn"]
@@ -154,7 +154,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
                   "dataset": str(learn["dataset"]), "metrics": metrics, "info": model.info,
                   "windows": sp.windows, "model_dir": str(model_dir)}
         run_json = out / "runs" / f"{name}.json"
-        write_json(run_json, _jsonable(record))
+        write_json(run_json, plain(record))
         tracked.tags({"qr.leaks_target": str(leaks).lower(), "qr.kind": model.kind, "qr.target": target})
         tracked.metrics(metrics)
         if model.kind == "gpr":
@@ -199,16 +199,6 @@ def _hyper_metrics(hp, target) -> dict:
     return out
 
 
-def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    return o
 
 
 def job_name(cfg: dict, hydra_cfg=None) -> str:
