@@ -67,6 +67,7 @@ def register_schemas() -> None:
 
 def _allowed(key: str):
     """The declared field (its :class:`qr.allowed.Allowed` and default) of a structured key, or None."""
+    import inspect
     from dataclasses import MISSING, fields, is_dataclass
 
     group, *path = key.split(".")
@@ -82,8 +83,6 @@ def _allowed(key: str):
             cls = f.default_factory if f.default_factory is not MISSING else None
             continue
         default = f.default if f.default_factory is MISSING else f.default_factory()
-        import inspect
-
         source = Path(inspect.getsourcefile(cls)).resolve()
         return f.metadata.get("allowed"), default, str(source.relative_to(ROOT) if source.is_relative_to(ROOT)
                                                        else source)
@@ -95,6 +94,7 @@ def _type_error(e: Exception, overrides: list[str]):
     import yaml
     from omegaconf.errors import ValidationError
 
+    from .allowed import show
     from .errors import QrInputError
 
     while e is not None and not isinstance(e, ValidationError):
@@ -106,12 +106,9 @@ def _type_error(e: Exception, overrides: list[str]):
     found = _allowed(key)
     if not key or raw is None or found is None:
         return None
-    if found[0] is None:  # a field without declared values (a switch, a name): OmegaConf's own words
-        what = str(getattr(e, "msg", "") or str(e)).strip().splitlines()[0]
-        return QrInputError(key, what.replace(f"'{raw}' of type 'str' ", f"'{raw}' ") if what else f"{raw!r} is not allowed",
-                            f"e.g. {key}={found[1]!r} (the default, {found[2]})".replace("True", "true")
-                            .replace("False", "false"))
     allowed, default, source = found
+    if allowed is None:  # a field without declared values (a switch, a name): OmegaConf's own words
+        return QrInputError(key, str(e.msg).strip().splitlines()[0], f"e.g. {key}={show(default)} (the default, {source})")
     try:
         value = yaml.safe_load(raw)
     except yaml.YAMLError:
