@@ -29,7 +29,7 @@ def quat_to_R(q):
     return R
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def R_entries(q0, q1, q2, q3):
     """The nine entries of quat_to_R, row by row, as scalars (no array: for the inner loops)."""
     return (1 - 2 * (q2 * q2 + q3 * q3), 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2),
@@ -43,38 +43,54 @@ def cross(a, b):
 
 
 @nb.njit(cache=True)
-def qmul(a, b):
-    return np.array([a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
-                     a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
-                     a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
-                     a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0]])
+def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
+    """``a ⊗ b`` on scalars (no array: for the filters' inner loops); :func:`qmul` on arrays."""
+    return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
+            a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
+            a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
+            a0 * b3 + a1 * b2 - a2 * b1 + a3 * b0)
 
 
 @nb.njit(cache=True)
-def qexp(phi):
-    """Unit quaternion of a rotation vector (scipy's ``from_rotvec`` series below 1e-3 rad)."""
-    th = math.sqrt(phi[0] ** 2 + phi[1] ** 2 + phi[2] ** 2)
+def qexp_s(p0, p1, p2):
+    """Unit quaternion of a rotation vector (scipy's ``from_rotvec`` series below 1e-3 rad), on scalars."""
+    th = math.sqrt(p0**2 + p1**2 + p2**2)
     if th <= 1e-3:
         s = 0.5 - th**2 / 48 + th**4 / 3840
     else:
         s = math.sin(th / 2) / th
-    return np.array([math.cos(th / 2), s * phi[0], s * phi[1], s * phi[2]])
+    return math.cos(th / 2), s * p0, s * p1, s * p2
 
 
 @nb.njit(cache=True)
-def qlog(q):
-    """Rotation vector of a quaternion, shortest rotation (scipy's ``as_rotvec``)."""
-    n = math.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    sg = -1.0 if q[0] < 0 else 1.0
-    w = sg * q[0] / n
-    v = sg * q[1:] / n
-    vn = math.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+def qlog_s(q0, q1, q2, q3):
+    """Rotation vector of a quaternion, shortest rotation (scipy's ``as_rotvec``), on scalars."""
+    n = math.sqrt(q0**2 + q1**2 + q2**2 + q3**2)
+    sg = -1.0 if q0 < 0 else 1.0
+    w = sg * q0 / n
+    v0, v1, v2 = sg * q1 / n, sg * q2 / n, sg * q3 / n
+    vn = math.sqrt(v0**2 + v1**2 + v2**2)
     th = 2 * math.atan2(vn, w)
     if th <= 1e-3:
         s = 2 + th**2 / 12 + 7 * th**4 / 2880
     else:
         s = th / math.sin(th / 2)
-    return s * v
+    return s * v0, s * v1, s * v2
+
+
+@nb.njit(cache=True)
+def qmul(a, b):
+    return np.array(qmul_s(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]))
+
+
+@nb.njit(cache=True)
+def qexp(phi):
+    return np.array(qexp_s(phi[0], phi[1], phi[2]))
+
+
+@nb.njit(cache=True)
+def qlog(q):
+    return np.array(qlog_s(q[0], q[1], q[2], q[3]))
 
 
 @nb.njit(cache=True)

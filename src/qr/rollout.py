@@ -26,8 +26,8 @@ import numpy as np
 import pandas as pd
 
 from .allowed import check_fields, check_known, setting
-from .frames_compiled import R_entries, cross, quat_angle, quat_to_R
-from .sim.plant import N_P, P_DELAY, P_MARKER, rigid_body_deriv, true_params
+from .frames_compiled import quat_angle
+from .sim.plant import N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 DEFAULTS_FILE = "src/qr/rollout.py"
@@ -35,42 +35,8 @@ QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angl
 MODEL, HOLD, RATE_FROZEN = 0, 1, 2
 
 
-@nb.njit(cache=True)
-def _step(x, u, P, frozen, dt, zero):
-    """One RK4 step of p, v, q, ω; ``frozen``: ω held (no angular acceleration)."""
-    k = np.empty((4, 13))  # (element loops, not array expressions: no temporaries in the inner loop)
-    xs = x.copy()
-    xn = np.empty(13)
-    for s in range(4):
-        if s > 0:
-            c = dt if s == 3 else 0.5 * dt
-            for j in range(13):
-                xs[j] = x[j] + c * k[s - 1, j]
-        rigid_body_deriv(xs, u, P, zero, zero, k[s])
-        if frozen:
-            k[s, 10] = k[s, 11] = k[s, 12] = 0.0
-    for j in range(13):
-        xn[j] = x[j] + dt / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
-    n = math.sqrt(xn[6] ** 2 + xn[7] ** 2 + xn[8] ** 2 + xn[9] ** 2)
-    for j in range(6, 10):
-        xn[j] /= n
-    return xn
-
-
 STRIDE = 32
 CHUNKS = 16  # fixed, not the thread count: the summation order (and so every digit) is the same anywhere
-
-
-@nb.njit(cache=True)
-def _tracked(x, r):
-    """Position and velocity (world) of the tracked point at body offset ``r``: p + R r, v + R (ω × r)."""
-    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R_entries(x[6], x[7], x[8], x[9])
-    c0 = x[11] * r[2] - x[12] * r[1]
-    c1 = x[12] * r[0] - x[10] * r[2]
-    c2 = x[10] * r[1] - x[11] * r[0]
-    return (x[0] + R00 * r[0] + R01 * r[1] + R02 * r[2], x[1] + R10 * r[0] + R11 * r[1] + R12 * r[2],
-            x[2] + R20 * r[0] + R21 * r[1] + R22 * r[2], x[3] + R00 * c0 + R01 * c1 + R02 * c2,
-            x[4] + R10 * c0 + R11 * c1 + R12 * c2, x[5] + R20 * c0 + R21 * c1 + R22 * c2)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -92,25 +58,25 @@ def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
     n = X0.shape[0]
     r = P[P_MARKER:P_MARKER + 3].copy()
     zero = np.zeros(3)
+    x, xn, xs, k = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
     for i in range(n - 1):
         if (i // STRIDE) % CHUNKS != c or not start_ok[i]:
             continue
-        x = X0[i].copy()
-        R = quat_to_R(x[6:10])
-        x[0:3] = x[0:3] - R @ r  # the tracked point's state → the CG's
-        x[3:6] = x[3:6] - R @ cross(x[10:13], r)
+        x[:] = X0[i]
+        cg_from_tracked(x, r)
         moving = mode != HOLD
         for h in range(1, H + 1):
             j = i + h
             if j >= n:
                 break
             if moving:
-                xn = _step(x, U[j - 1], P, mode == RATE_FROZEN, t[j] - t[j - 1], zero)
+                u = U[j - 1]
+                rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], mode == RATE_FROZEN, zero, k, xs, xn)
                 if np.all(np.isfinite(xn)) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
-                    x = xn
+                    x, xn = xn, x
                 else:  # diverged: the last sane state stands for the rest (its errors still count)
                     moving = False
-            px, py, pz, vx, vy, vz = _tracked(x, r)
+            px, py, pz, vx, vy, vz = tracked_pv(x, r)
             if np.isfinite(tp[j, 0]):
                 sums[h - 1, 0] += math.sqrt((px - tp[j, 0]) ** 2 + (py - tp[j, 1]) ** 2 + (pz - tp[j, 2]) ** 2)
                 counts[h - 1, 0] += 1

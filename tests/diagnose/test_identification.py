@@ -24,7 +24,7 @@ def test_regressor_noise_correction_undoes_the_attenuation():
     D = (xa - xb)[:, None, None] * np.eye(6)[None, :, :1]  # the column in one of the six rows
     w = np.zeros((n, 6))
     w[:, 0] = 1.0
-    N = regressor_noise(D, w, np.zeros(n, dtype=int), 1)[0]
+    N = regressor_noise(D, w, np.zeros(n, dtype=int), 1).sum(axis=0)[0]  # the rows' sum, block 0
     assert N[0, 0] == pytest.approx(2 * 0.25 * 2 * n / 2, rel=0.01)  # both copies' noise variance, n samples
     assert solve(G - N, h)[0] == pytest.approx(2.0, abs=0.01)
 
@@ -258,3 +258,23 @@ def test_the_compiled_bounded_solver_finds_the_bvls_minimiser():
     assert np.allclose(box_qp(G, h, [-10, -10], [10, 10]), np.linalg.solve(G, h))
     # by hand: x2 held at its bound 0, then x1 = h1 / G11
     assert np.allclose(box_qp(G, h, [-10, 0], [10, 10]), [0.5, 0.0])
+
+
+def test_per_row_normal_equations_sum_to_any_set_of_rows():
+    """``accumulate`` keeps each of the six rows' statistics apart; a set of rows (force, torque, all) is
+    their sum, equal to the weighted normal equations of those rows alone, written out directly."""
+    from qr.identification.normal_equations import accumulate, row_sums
+
+    rng = np.random.default_rng(5)
+    n, p, blocks = 300, 3, np.repeat([0, 1, 2], 100)
+    X, y, w = rng.standard_normal((n, 6, p)), rng.standard_normal((n, 6)), rng.uniform(0.5, 2.0, (n, 6))
+    y[117, 4] = np.nan  # a sample (of block 1) missing in one row counts in none
+    G6, h6, s6, cnt = accumulate(X, y, w, blocks, 3)
+    for rows in (None, (0, 1, 2), (3, 4, 5), (3, 4)):
+        r = list(range(6)) if rows is None else list(rows)
+        keep = np.isfinite(y).all(axis=1) & (blocks == 1)
+        Xr, yr, wr = X[keep][:, r], y[keep][:, r], w[keep][:, r]
+        np.testing.assert_allclose(row_sums(G6, rows)[1], np.einsum("nrp,nr,nrq->pq", Xr, wr, Xr), rtol=1e-12)
+        np.testing.assert_allclose(row_sums(h6, rows)[1], np.einsum("nrp,nr,nr->p", Xr, wr, yr), rtol=1e-12)
+        assert row_sums(s6, rows)[1] == pytest.approx(float(np.sum(wr * yr**2)), rel=1e-12)
+    assert cnt.tolist() == [600, 594, 600]  # sample-axis count: six per complete sample

@@ -18,8 +18,9 @@ from ..effects import CATALOG, Signals, plausible_bounds, total_term
 from ..identification import delay as delay_mod
 from ..identification.bootstrap import bootstrap
 from ..identification.normal_equations import (BlockStats, Columns, accumulate, bounded_noise, design, fit, loss,
-                                                regressor_noise)
+                                                regressor_noise, row_sums)
 from ..identification.selection import ROWS, select, torque_arbitration
+from ..parallel import thread_map
 from ..states import signals
 from ..torque_remainder import torque as remainder_torque
 from . import replay as replay_mod
@@ -159,28 +160,26 @@ def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = N
     n_blocks = int(prep.block[idx].max()) + 1 if idx.size else 0
     p = cols.size
     w0 = weights(prep.sd)
-    ws = [w0 if r is None else w0 * np.isin(np.arange(6), r) for r in row_sets]
-    acc = [[np.zeros((n_blocks, p, p)), np.zeros((n_blocks, p)), np.zeros(n_blocks), np.zeros(n_blocks)]
-           for _ in row_sets]
     lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
     ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
     n = prep.pair_offset
     if n and EIV:  # cross-fitting halves: rows i and i + n, labels and regressors swapped
         idx = idx[idx < n]
-    noise = [np.zeros((n_blocks, p, p)) for _ in row_sets]
+    acc = (np.zeros((6, n_blocks, p, p)), np.zeros((6, n_blocks, p)), np.zeros((6, n_blocks)), np.zeros(n_blocks))
+    noise = np.zeros((6, n_blocks, p, p))
     for start in range(0, idx.size, CHUNK):
         sl = idx[start:start + CHUNK]
         parts = [sl, sl + n] if n and EIV else [sl]
         Xs = [design(s_design.take(r), vehicle, cols) for r in parts]
-        for a, N, w in zip(acc, noise, ws):
-            for r, X in zip(parts, Xs):
-                for total, part in zip(a, accumulate(X, y[r], w[r], prep.block[r], n_blocks)):
-                    total += part
-            if len(Xs) == 2:  # the regressors' own noise, which the fit would otherwise count as signal
-                N += regressor_noise(Xs[1] - Xs[0], 0.5 * (w[parts[0]] + w[parts[1]]), prep.block[sl], n_blocks)
-    for a, N in zip(acc, noise):
-        a[0] -= bounded_noise(a[0], N)
-    out = [BlockStats(*a, cols, lb, ub) for a in acc]
+        for r, X in zip(parts, Xs):
+            accumulate(X, y[r], w0[r], prep.block[r], n_blocks, out=acc)
+        if len(Xs) == 2:  # the regressors' own noise, which the fit would otherwise count as signal
+            regressor_noise(Xs[1] - Xs[0], 0.5 * (w0[parts[0]] + w0[parts[1]]), prep.block[sl], n_blocks, out=noise)
+    out = []
+    for rows in row_sets:
+        G, N = row_sums(acc[0], rows), row_sums(noise, rows)
+        out.append(BlockStats(G - bounded_noise(G, N), row_sums(acc[1], rows), row_sums(acc[2], rows), acc[3].copy(),
+                              cols, lb, ub))
     return out if many else out[0]
 
 
@@ -236,7 +235,7 @@ def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, c
         yd = prep.y - exact_delay_term(prep, vehicle, d)
         st = block_stats(prep, vehicle, cols, yd, s=at_delay(prep, vehicle, d))
         th = fit(st, others) if others else np.zeros(0)
-        G, h, s, n = st.subset(np.arange(len(st.s)))
+        G, h, s, n = st.total
         return loss(G, h, s, n, th), th
 
     d1 = float(theta[Columns.of(named).slices["actuator_delay"]][0])
@@ -468,8 +467,9 @@ def _replay_all(states_list, measured_list, vehicle, effects, cfg, prep):
     owner = flight_of(states_list)
     for i, (st, meas) in enumerate(zip(states_list, measured_list)):
         meas = on_stamps(meas, st["t"])
-        for key, eff in (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects))):
-            err = replay_mod.replay(st, meas, vehicle, eff, cfg.horizon_s)
+        models = (("nominal", vehicle.effects), ("extended", vehicle.effects + extended_effects(effects)))
+        errs = thread_map(lambda m: replay_mod.replay(st, meas, vehicle, m[1], cfg.horizon_s), models)
+        for (key, _), err in zip(models, errs):
             err["test"] = err["t"] >= prep.windows[owner[i]]["test"][0]
             err["flight"] = i
             out[key].append(err)

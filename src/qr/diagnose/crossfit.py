@@ -20,7 +20,8 @@ import copy
 import numpy as np
 import pandas as pd
 
-from ..estimation import estimate
+from ..estimation import TUNED_NIS_NOTE, estimate, tuned_noise
+from ..parallel import thread_map
 from .matched import add_matched_rotor_signals
 
 MEASURED = ["px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"]
@@ -65,17 +66,18 @@ def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1
     return cfg
 
 
-def halves(flight: pd.DataFrame, vehicle, cfg: dict) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """State tables of the even-sample and the odd-sample filters (settings ``cfg``), at every stamp."""
-    out = []
-    for parity in (0, 1):
-        f = flight.copy()
-        f.loc[f.index % 2 != parity, MEASURED] = np.nan
-        # keep the first rows measured so each filter starts from data
-        f.loc[:1, MEASURED] = flight.loc[:1, MEASURED]
-        st, _ = estimate(f, vehicle, cfg)
-        out.append(add_matched_rotor_signals(st, f, cfg))
-    return out[0], out[1]
+def _half(flight: pd.DataFrame, parity: int) -> pd.DataFrame:
+    """The flight with every other sample's measurements removed (dropouts), keeping ``parity``'s."""
+    f = flight.copy()
+    f.loc[f.index % 2 != parity, MEASURED] = np.nan
+    # keep the first rows measured so each filter starts from data
+    f.loc[:1, MEASURED] = flight.loc[:1, MEASURED]
+    return f
+
+
+def _states(flight: pd.DataFrame, vehicle, cfg: dict) -> pd.DataFrame:
+    st, _ = estimate(flight, vehicle, cfg)
+    return add_matched_rotor_signals(st, flight, cfg)
 
 
 # ---- the filter stage's cross-fit file: every segment's estimates, written once, read by each diagnosis ----
@@ -99,14 +101,17 @@ def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None
     reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
     """
     if report is None:
-        _, report = estimate(flight, vehicle, filter_cfg)
+        report = {"tuning": tuned_noise(flight, vehicle, filter_cfg)}
     matched = matched_settings(filter_cfg, report)
-    st, _ = estimate(flight, vehicle, matched)
-    return add_matched_rotor_signals(st, flight, matched), halves(flight, vehicle, matched), report
+    # the full flight and its two halves: three independent filters, run side by side
+    st, even, odd = thread_map(lambda f: _states(f, vehicle, matched),
+                               (flight, _half(flight, 0), _half(flight, 1)))
+    return st, (even, odd), report
 
 
 def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) -> dict | None:
-    """A tuning filter's (``filter=auto``) report, tuned on the flight's longest airborne, gap-free
+    """A tuning filter's (``filter=auto``) noise values (report keys ``tuning``, ``tuned_on_s``,
+    ``nis_note``), tuned on the flight's longest airborne, gap-free
     segment: ground rows (rotors idle, vehicle resting) would bias the noise values (10 s of them
     moved a hidden kz from 0.044 to 0.095).  The diagnosis on the command line tunes on the same
     rows (:func:`prepare_flight` on its longest segment first), so the filter stage and the command
@@ -124,9 +129,8 @@ def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: b
     if not used:
         return None
     seg = max(used, key=lambda s: s.window[1] - s.window[0])  # the first of equals, as sorted() keeps
-    _, report = estimate(seg.rows, vehicle, filter_cfg, progress=progress)
-    report["tuned_on_s"] = [seg.window[0], seg.window[1]]
-    return report
+    return {"tuning": tuned_noise(seg.rows, vehicle, filter_cfg, progress=progress),
+            "tuned_on_s": [seg.window[0], seg.window[1]], "nis_note": TUNED_NIS_NOTE}
 
 
 def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None,

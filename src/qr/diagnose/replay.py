@@ -10,42 +10,36 @@ effect means.
 
 from __future__ import annotations
 
-import math
 
 import numba as nb
 import numpy as np
 import pandas as pd
 
 from ..frames import quat_to_rot
-from ..frames_compiled import cross, quat_to_R
-from ..sim.plant import P_DELAY, P_MARKER, rigid_body_deriv, true_params
+from ..sim.plant import P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 
 @nb.njit(cache=True)
-def _speeds_at(t, tt, U, k):
-    """Rotor speeds at time ``t`` by linear interpolation around index ``k``."""
+def _speeds_at(t, tt, U, k, out):
+    """Rotor speeds at time ``t`` into ``out``, by linear interpolation around index ``k``; the new ``k``."""
     n = tt.shape[0]
     while k > 0 and tt[k] > t:
         k -= 1
     while k < n - 2 and tt[k + 1] < t:
         k += 1
     if t <= tt[0]:
-        return U[0].copy(), k
-    if t >= tt[n - 1]:
-        return U[n - 1].copy(), k
-    f = (t - tt[k]) / (tt[k + 1] - tt[k])
-    return (1 - f) * U[k] + f * U[k + 1], k
+        out[:] = U[0]
+    elif t >= tt[n - 1]:
+        out[:] = U[n - 1]
+    else:
+        f = (t - tt[k]) / (tt[k + 1] - tt[k])
+        for m in range(out.shape[0]):
+            out[m] = (1 - f) * U[k, m] + f * U[k + 1, m]
+    return k
 
 
-@nb.njit(cache=True)
-def _xdot(x, ue, P, zero):
-    dx = np.empty(13)
-    rigid_body_deriv(x, ue, P, zero, zero, dx)
-    return dx
-
-
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _replay(t, X0, U, starts, horizon, P, substeps):
     """Predicted tracked-point position and attitude at every sample of every window."""
     n = t.shape[0]
@@ -55,18 +49,17 @@ def _replay(t, X0, U, starts, horizon, P, substeps):
     r = P[P_MARKER:P_MARKER + 3].copy()
     zero = np.zeros(3)
     d = P[P_DELAY]
+    m = U.shape[1]
+    u0, um, u1 = np.empty(m), np.empty(m), np.empty(m)
+    x, xn, xs, kk = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
     for s in range(starts.shape[0]):
         i0 = starts[s]
-        x = X0[i0].copy()
-        R = quat_to_R(x[6:10])
-        # state of the CG from the tracked point
-        x[0:3] = x[0:3] - R @ r
-        x[3:6] = x[3:6] - R @ cross(x[10:13], r)
+        x[:] = X0[i0]
+        cg_from_tracked(x, r)
         k = i0
         i = i0
         while True:
-            R = quat_to_R(x[6:10])
-            pos[i] = x[0:3] + R @ r
+            pos[i, 0], pos[i, 1], pos[i, 2], _, _, _ = tracked_pv(x, r)
             quat[i] = x[6:10]
             elapsed[i] = t[i] - t[i0]
             if i + 1 >= n or t[i + 1] - t[i0] > horizon + 1e-9:
@@ -74,16 +67,11 @@ def _replay(t, X0, U, starts, horizon, P, substeps):
             h = (t[i + 1] - t[i]) / substeps
             for j in range(substeps):
                 tj = t[i] + j * h
-                u0, k = _speeds_at(tj - d, t, U, k)
-                um, k = _speeds_at(tj + 0.5 * h - d, t, U, k)
-                u1, k = _speeds_at(tj + h - d, t, U, k)
-                k1 = _xdot(x, u0, P, zero)
-                k2 = _xdot(x + 0.5 * h * k1, um, P, zero)
-                k3 = _xdot(x + 0.5 * h * k2, um, P, zero)
-                k4 = _xdot(x + h * k3, u1, P, zero)
-                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-                nq = math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)
-                x[6:10] /= nq
+                k = _speeds_at(tj - d, t, U, k, u0)
+                k = _speeds_at(tj + 0.5 * h - d, t, U, k, um)
+                k = _speeds_at(tj + h - d, t, U, k, u1)
+                rigid_body_rk4(x, u0, um, u1, P, h, False, zero, kk, xs, xn)
+                x, xn = xn, x
             i += 1
             if not (np.all(np.isfinite(x)) and abs(x[3]) + abs(x[4]) + abs(x[5]) < 1e3):
                 break  # the model diverged in this window: stop predicting

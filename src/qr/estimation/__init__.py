@@ -20,12 +20,13 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..flight import check_not_frozen
+from ..parallel import thread_map
 from ..states import COLUMNS
 from . import attitude_eskf, gyro, motor_kf, nis, position_kf
 from .settings import DEFAULTS, FILTERS, resolve
 from .tuning import ORDER, corner_hz, tune
 
-__all__ = ["estimate", "DEFAULTS", "resolve"]
+__all__ = ["estimate", "tuned_noise", "DEFAULTS", "resolve"]
 
 MIN_SAMPLES = 10
 P_COLS, Q_COLS, U_COLS = ["px", "py", "pz"], ["qw", "qx", "qy", "qz"], ["u1", "u2", "u3", "u4"]
@@ -58,6 +59,42 @@ def _keep(t: np.ndarray, burn_in_s: float) -> np.ndarray:
     return t >= t[0] + min(float(burn_in_s), 0.5 * (t[-1] - t[0]))
 
 
+TUNED_NIS_NOTE = ("tuned: q and r are scaled so each filter's mean NIS equals its dimension; judge "
+                  "consistency by outside_sample_band (expected 1 - confidence)")
+
+
+def _tune(s: dict, t, meas: dict, keep, speed_scale: float, progress: bool) -> dict:
+    """Each filter's likelihood-tuned ``q``, ``r`` (:mod:`.tuning`); empty unless ``tune.enabled``."""
+    if not s["tune"]["enabled"]:
+        return {}
+    from tqdm import tqdm
+
+    # the noise is stationary: a long flight is tuned on its middle window (each search runs the
+    # filter ~40 times)
+    n, M = len(t), int(s["tune"]["max_samples"])
+    w = slice((n - M) // 2, (n - M) // 2 + M) if n > M else slice(None)
+
+    def one(f):
+        return tune(f, t[w], meas[f][w], keep[w], s["tune"]["min_corner_hz"], int(s["tune"]["grid"]),
+                    int(s["tune"]["rounds"]), speed_scale, s["attitude"]["reset_deg"])
+
+    with tqdm(total=len(FILTERS), desc="filter=auto: likelihood search", disable=not progress) as bar:
+        return dict(zip(FILTERS, thread_map(lambda f: (one(f), bar.update())[0], FILTERS)))
+
+
+def tuned_noise(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progress: bool = False,
+                source: str | None = None) -> dict | None:
+    """The ``tuning`` entry of :func:`estimate`'s report (None unless ``tune.enabled``), without
+    filtering the flight afterwards: the callers that freeze the tuned values filter other rows."""
+    s = resolve(cfg)
+    if not s["tune"]["enabled"]:
+        return None
+    t, P, Qm, U = _inputs(flight, source or flight.attrs.get("source"))
+    speed_scale = float(vehicle.hover_speed) if vehicle is not None else float(np.nanmedian(np.abs(U)))
+    return _tune(s, t, {"position": P, "attitude": Qm, "motor": U}, _keep(t, s["nis"]["burn_in_s"]),
+                 speed_scale, progress)
+
+
 def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progress: bool = False,
              source: str | None = None) -> tuple[pd.DataFrame, dict]:
     """Filter (or smooth) a canonical flight into the state table.
@@ -75,23 +112,14 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     keep = _keep(t, s["nis"]["burn_in_s"])
     speed_scale = float(vehicle.hover_speed) if vehicle is not None else float(np.nanmedian(np.abs(U)))
     meas = {"position": P, "attitude": Qm, "motor": U}
-    tuned = {}
-    if s["tune"]["enabled"]:
-        from tqdm import tqdm
-
-        # the noise is stationary: a long flight is tuned on its middle window (each search runs the
-        # filter ~40 times)
-        n, M = len(t), int(s["tune"]["max_samples"])
-        w = slice((n - M) // 2, (n - M) // 2 + M) if n > M else slice(None)
-        for f in tqdm(FILTERS, desc="filter=auto: likelihood search", disable=not progress):
-            tuned[f] = tune(f, t[w], meas[f][w], keep[w], s["tune"]["min_corner_hz"], int(s["tune"]["grid"]),
-                            int(s["tune"]["rounds"]), speed_scale, s["attitude"]["reset_deg"])
-            s[f]["q"], s[f]["r"] = tuned[f]["q"], tuned[f]["r"]
+    tuned = _tune(s, t, meas, keep, speed_scale, progress)
+    for f, v in tuned.items():
+        s[f]["q"], s[f]["r"] = v["q"], v["r"]
     disc, smooth, ref = s["discretisation"], bool(s["smoother"]), s["implementation"] == "reference"
     kw = dict(progress=progress) if ref else {}
 
     pf = position_kf.filter_reference if ref else position_kf.filter_fast
-    Xp, Vp, inn_p = pf(t, P, s["position"]["q"], s["position"]["r"], disc, smooth, **kw)
+    mf = motor_kf.filter_reference if ref else motor_kf.filter_fast
     att = (t, Qm, s["attitude"]["q"], s["attitude"]["r"], disc, smooth)
 
     def attitude(**g):
@@ -101,17 +129,25 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
             return (quat, psi, *attitude_eskf.covariance_summary(Ps), inn, resets)
         return attitude_eskf.filter_fast(*att, reset_deg=s["attitude"]["reset_deg"], **g)
 
-    quat, psi, Va, blocks, inn_a, resets = attitude()
-    G = gyro.samples(flight) if s["attitude"]["gyro"] else None
-    gyro_report = None
-    if G is not None:  # a second pass with the gyro; the first gives its bias
+    def attitude_with_gyro():
+        out = attitude()
+        G = gyro.samples(flight) if s["attitude"]["gyro"] else None
+        if G is None:
+            return out, None
+        quat, psi, _, blocks, _, _ = out  # a second pass with the gyro; the first gives its bias
         b = gyro.bias(G, attitude_eskf.body_rates(quat, psi, blocks)[0])
         rg = gyro.noise_variance(G)
-        quat, psi, Va, blocks, inn_a, resets = attitude(gyro=G - b, r_gyro=rg)
-        gyro_report = {"fused": True, "bias": [float(x) for x in b], "noise_sd": float(np.sqrt(rg)),
-                       "samples": int(np.all(np.isfinite(G), axis=1).sum())}
-    mf = motor_kf.filter_reference if ref else motor_kf.filter_fast
-    Xm, Vm, inn_m = mf(t, U, s["motor"]["q"], s["motor"]["r"], disc, smooth, speed_scale=speed_scale, **kw)
+        return attitude(gyro=G - b, r_gyro=rg), {"fused": True, "bias": [float(x) for x in b],
+                                                "noise_sd": float(np.sqrt(rg)),
+                                                "samples": int(np.all(np.isfinite(G), axis=1).sum())}
+
+    tasks = [attitude_with_gyro,  # the longest first
+             lambda: pf(t, P, s["position"]["q"], s["position"]["r"], disc, smooth, **kw),
+             lambda: mf(t, U, s["motor"]["q"], s["motor"]["r"], disc, smooth, speed_scale=speed_scale, **kw)]
+    # the three filters are independent: side by side on the compiled path (the reference path prints
+    # progress bars, one at a time)
+    ((quat, psi, Va, blocks, inn_a, resets), gyro_report), (Xp, Vp, inn_p), (Xm, Vm, inn_m) = \
+        [f() for f in tasks] if ref else thread_map(lambda f: f(), tasks)
 
     w, al, sd_w, sd_al = attitude_eskf.body_rates(quat, psi, blocks)
     cols = {"t": t}
@@ -158,7 +194,6 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
         "gyro": gyro_report or {"fused": False},
         "attitude_restarts": {"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
         "nis": nis_report, "nis_burn_in_s": float(t[keep][0] - t[0]), "inconsistent": flagged,
-        "nis_note": ("tuned: q and r are scaled so each filter's mean NIS equals its dimension; judge "
-                     "consistency by outside_sample_band (expected 1 - confidence)") if tuned else None,
+        "nis_note": TUNED_NIS_NOTE if tuned else None,
     }
     return table, report

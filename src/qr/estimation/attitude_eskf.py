@@ -226,7 +226,8 @@ def body_rates(quat, psi, blocks):
     R = quat_to_rot(quat)
     w = np.einsum("nji,nj->ni", R, psi[:, 0:3])
     al = np.einsum("nji,nj->ni", R, psi[:, 3:6])
-    sd = [np.sqrt(np.einsum("nji,njk,nki->ni", R, blocks[:, b], R)) for b in (0, 1)]
+    # diag(Rᵀ B R) = Σ_j R_ji (B R)_ji: a batched product, not a three-operand einsum (ten times slower)
+    sd = [np.sqrt(np.sum(R * np.matmul(blocks[:, b], R), axis=1)) for b in (0, 1)]
     return w, al, sd[0], sd[1]
 
 

@@ -37,7 +37,7 @@ def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: 
     counts = block_counts(stats.blocks, n, seed) if counts is None else counts
     if idx.size == 0:
         return np.zeros((len(counts), 0))
-    Gs = stats.G[:, idx][:, :, idx]
+    Gs = stats.G[:, idx[:, None], idx[None, :]]
     hs = stats.h[:, idx]
     Gb, hb = np.tensordot(counts, Gs, 1), counts @ hs
     return solve_many(Gb, hb, *stats.bounds(idx))

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..parallel import thread_map
+
 
 def runs(t: np.ndarray, flight: np.ndarray) -> list[tuple[int, int]]:
     """Contiguous runs of increasing time within one flight (the cross-fitting halves repeat time)."""
@@ -70,7 +72,7 @@ def estimate(loss, d_max: float, d_min: float, n_grid: int = 21) -> float:
     from scipy.optimize import minimize_scalar
 
     xs = np.linspace(d_min, d_max, n_grid)
-    vals = [loss(x) for x in xs]
+    vals = thread_map(loss, xs)  # independent evaluations, side by side
     i = int(np.argmin(vals))
     lo, hi = xs[max(i - 1, 0)], xs[min(i + 1, n_grid - 1)]
     res = minimize_scalar(loss, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})

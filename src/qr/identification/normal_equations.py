@@ -12,6 +12,7 @@ noise floor (≈ 1 when only noise is left).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -80,21 +81,31 @@ class BlockStats:
     def subset(self, blocks) -> tuple[np.ndarray, np.ndarray, float, float]:
         return self.G[blocks].sum(0), self.h[blocks].sum(0), float(self.s[blocks].sum()), float(self.n[blocks].sum())
 
+    @cached_property
+    def total(self) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """``subset`` of every block, summed once (the selection fits a thousand sets on it; the
+        statistics are not changed after they are built)."""
+        return self.subset(np.arange(self.blocks))
+
     @property
     def blocks(self) -> int:
         return len(self.s)
 
 
-def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int):
-    """A chunk's contribution to per-block normal equations.
+def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int, out=None):
+    """A chunk's contribution to per-block normal equations, row by row: ``G`` (6, B, p, p), ``h``
+    (6, B, p), ``s`` (6, B) for each of the six force/torque rows alone, and ``n`` (B,), the sample-axis
+    count; added to ``out`` (zeros if None).  Any set of rows is then a sum (:func:`row_sums`): the
+    force, torque and all-row statistics from one pass.
 
-    ``X`` (N, 6, p), ``y`` (N, 6), ``w`` (N, 6) weights, ``block_id`` (N,) sorted.
+    ``X`` (N, 6, p), ``y`` (N, 6), ``w`` (N, 6) weights, ``block_id`` (N,) sorted.  A sample counts only
+    where its label, design and weights are finite in every row.
     """
     p = X.shape[2]
-    G = np.zeros((n_blocks, p, p))
-    h = np.zeros((n_blocks, p))
-    s = np.zeros(n_blocks)
-    n = np.zeros(n_blocks)
+    if out is None:
+        out = (np.zeros((6, n_blocks, p, p)), np.zeros((6, n_blocks, p)), np.zeros((6, n_blocks)),
+               np.zeros(n_blocks))
+    G, h, s, n = out
     ok = np.isfinite(y).all(axis=1) & np.isfinite(X).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
     edges = np.flatnonzero(np.diff(block_id)) + 1
     for idx in np.split(np.arange(len(block_id)), edges):
@@ -102,15 +113,19 @@ def accumulate(X: np.ndarray, y: np.ndarray, w: np.ndarray, block_id: np.ndarray
         if idx.size == 0:
             continue
         b = block_id[idx[0]]
-        Xb = X[idx].reshape(idx.size * 6, p)
-        wb = w[idx].reshape(-1)
-        yb = y[idx].reshape(-1)
-        Xw = Xb * wb[:, None]
-        G[b] += Xb.T @ Xw
-        h[b] += Xw.T @ yb
-        s[b] += float(yb @ (wb * yb))
+        Xb = X[idx].transpose(1, 0, 2)  # (6, nb, p)
+        wb, yb = w[idx].T, y[idx].T  # (6, nb)
+        Xw = Xb * wb[:, :, None]
+        G[:, b] += np.matmul(Xb.transpose(0, 2, 1), Xw)
+        h[:, b] += np.matmul(Xw.transpose(0, 2, 1), yb[:, :, None])[:, :, 0]
+        s[:, b] += np.einsum("rn,rn->r", yb, wb * yb)
         n[b] += idx.size * 6
-    return G, h, s, n
+    return out
+
+
+def row_sums(per_row: np.ndarray, rows=None) -> np.ndarray:
+    """The statistics of a set of rows (None: all six) from :func:`accumulate`'s per-row ones."""
+    return per_row[list(range(6)) if rows is None else sorted(rows)].sum(axis=0)
 
 
 def bounded_noise(G: np.ndarray, N: np.ndarray, keep: float = 0.1) -> np.ndarray:
@@ -124,18 +139,20 @@ def bounded_noise(G: np.ndarray, N: np.ndarray, keep: float = 0.1) -> np.ndarray
     return N * r[None, :, None] * r[None, None, :]
 
 
-def regressor_noise(D: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int) -> np.ndarray:
-    """Per-block ``Σ Dᵀ W D`` of design differences ``D`` (N, 6, p) between the cross-fitting halves at the
-    same stamps: their regressor noise, to take out of ``G`` (errors in variables)."""
+def regressor_noise(D: np.ndarray, w: np.ndarray, block_id: np.ndarray, n_blocks: int,
+                    out: np.ndarray | None = None) -> np.ndarray:
+    """Per-row, per-block ``Σ Dᵀ W D`` (6, B, p, p) of design differences ``D`` (N, 6, p) between the
+    cross-fitting halves at the same stamps: their regressor noise, to take out of ``G`` (errors in
+    variables); added to ``out``."""
     p = D.shape[2]
-    N = np.zeros((n_blocks, p, p))
+    N = np.zeros((6, n_blocks, p, p)) if out is None else out
     ok = np.isfinite(D).all(axis=(1, 2)) & np.isfinite(w).all(axis=1)
     edges = np.flatnonzero(np.diff(block_id)) + 1
     for idx in np.split(np.arange(len(block_id)), edges):
         idx = idx[ok[idx]]
         if idx.size:
-            Db = D[idx].reshape(idx.size * 6, p)
-            N[block_id[idx[0]]] += Db.T @ (Db * w[idx].reshape(-1)[:, None])
+            Db = D[idx].transpose(1, 0, 2)  # (6, nb, p)
+            N[:, block_id[idx[0]]] += np.matmul(Db.transpose(0, 2, 1), Db * w[idx].T[:, :, None])
     return N
 
 
@@ -174,8 +191,7 @@ def loss(G, h, s, n, theta) -> float:
 
 def fit(stats: BlockStats, effects: list[str], blocks=None) -> np.ndarray:
     """Parameters (minus neutral values) of ``effects`` on ``blocks`` (all), within the plausible bounds."""
-    blocks = np.arange(stats.blocks) if blocks is None else blocks
-    G, h, _, _ = stats.subset(blocks)
+    G, h, _, _ = stats.total if blocks is None else stats.subset(blocks)
     idx = stats.cols.index(effects)
     return solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *stats.bounds(idx))
 
@@ -227,6 +243,7 @@ class CrossValidator:
             val = self.fold_of == f
             near = val | np.roll(val, 1) | np.roll(val, -1)
             self.train.append(np.flatnonzero(~near))
+        self._train_sums = [stats.subset(t)[:2] for t in self.train]  # the same for every candidate set
         self._cache: dict[tuple, np.ndarray] = {}
 
     def block_losses(self, effects, on: BlockStats | None = None) -> np.ndarray:
@@ -238,11 +255,11 @@ class CrossValidator:
             idx = st.cols.index(list(key[0]))
             out = np.empty(st.blocks)
             for f in range(self.folds):
-                G, h, _, _ = st.subset(self.train[f])
+                G, h = self._train_sums[f]
                 theta = solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *st.bounds(idx))
                 vb = np.flatnonzero(self.fold_of == f)
-                Gv = ev.G[vb][:, idx][:, :, idx]
-                out[vb] = ev.s[vb] - 2 * ev.h[vb][:, idx] @ theta + np.einsum("i,bij,j->b", theta, Gv, theta)
+                Gv = ev.G[np.ix_(vb, idx, idx)]
+                out[vb] = ev.s[vb] - 2 * ev.h[np.ix_(vb, idx)] @ theta + np.einsum("i,bij,j->b", theta, Gv, theta)
             self._cache[key] = out
         return self._cache[key]
 

@@ -358,7 +358,7 @@ def torque_arbitration(row_stats, base=(), effects=("thrust_gain",)) -> dict:
         if e not in t_st.cols.effects:
             continue
         if at_bound(t_st, base + [e], e) and not at_bound(f_st, [e], e):
-            G, h, _, _ = t_st.subset(np.arange(t_st.blocks))
+            G, h, _, _ = t_st.total
             idx = t_st.cols.index(base + [e])
             free = solve(G[np.ix_(idx, idx)], h[idx])[-len(CATALOG[e].params):]
             neutral = np.asarray(CATALOG[e].neutral, float)

@@ -89,7 +89,7 @@ def true_params(vehicle, effects: list[dict] | None = None) -> np.ndarray:
     return P
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _accels(x, u_eff, P, f_ext, tau_ext):
     """World acceleration of the CG and body angular acceleration (TRUE physics), as six scalars.
 
@@ -159,7 +159,7 @@ def plant_accels(x, u_eff, P, f_ext, tau_ext):
     return np.array([ax, ay, az]), np.array([bx, by, bz])
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def rigid_body_deriv(x, u_eff, P, f_ext, tau_ext, dx):
     """Derivatives of p, v, q, ω (``dx[0:13]``) with the rotor speeds ``u_eff`` acting."""
     ax, ay, az, bx, by, bz = _accels(x, u_eff, P, f_ext, tau_ext)
@@ -179,6 +179,59 @@ def rigid_body_deriv(x, u_eff, P, f_ext, tau_ext, dx):
     dx[10] = bx
     dx[11] = by
     dx[12] = bz
+
+
+@nb.njit(cache=True)
+def tracked_pv(x, r):
+    """Position and velocity (world) of the tracked point at body offset ``r``: ``p + R r``, ``v + R (ω × r)``
+    (the inverse of :func:`cg_from_tracked`)."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R_entries(x[6], x[7], x[8], x[9])
+    c0 = x[11] * r[2] - x[12] * r[1]
+    c1 = x[12] * r[0] - x[10] * r[2]
+    c2 = x[10] * r[1] - x[11] * r[0]
+    return (x[0] + R00 * r[0] + R01 * r[1] + R02 * r[2], x[1] + R10 * r[0] + R11 * r[1] + R12 * r[2],
+            x[2] + R20 * r[0] + R21 * r[1] + R22 * r[2], x[3] + R00 * c0 + R01 * c1 + R02 * c2,
+            x[4] + R10 * c0 + R11 * c1 + R12 * c2, x[5] + R20 * c0 + R21 * c1 + R22 * c2)
+
+
+@nb.njit(cache=True)
+def cg_from_tracked(x, r):
+    """In place: a state of the tracked point (body offset ``r`` from the CG) → the CG's:
+    ``p - R r``, ``v - R (ω × r)``."""
+    R00, R01, R02, R10, R11, R12, R20, R21, R22 = R_entries(x[6], x[7], x[8], x[9])
+    c0 = x[11] * r[2] - x[12] * r[1]
+    c1 = x[12] * r[0] - x[10] * r[2]
+    c2 = x[10] * r[1] - x[11] * r[0]
+    x[0] -= R00 * r[0] + R01 * r[1] + R02 * r[2]
+    x[1] -= R10 * r[0] + R11 * r[1] + R12 * r[2]
+    x[2] -= R20 * r[0] + R21 * r[1] + R22 * r[2]
+    x[3] -= R00 * c0 + R01 * c1 + R02 * c2
+    x[4] -= R10 * c0 + R11 * c1 + R12 * c2
+    x[5] -= R20 * c0 + R21 * c1 + R22 * c2
+
+
+@nb.njit(cache=True)
+def rigid_body_rk4(x, u0, um, u1, P, dt, frozen, zero, k, xs, xn):
+    """One RK4 step of p, v, q, ω (13 states) into ``xn``, the rotor speeds ``u0``, ``um``, ``u1`` acting at
+    the start, middle and end of the step; ``frozen``: ω held.  ``k`` (4, 13) and ``xs`` (13,) are
+    scratch: the rollout and the replay take millions of steps, and small arrays cost more than the
+    arithmetic.  The quaternion is renormalised."""
+    for s in range(4):
+        if s > 0:
+            c = dt if s == 3 else 0.5 * dt
+            for j in range(13):
+                xs[j] = x[j] + c * k[s - 1, j]
+        else:
+            for j in range(13):
+                xs[j] = x[j]
+        rigid_body_deriv(xs, u0 if s == 0 else (u1 if s == 3 else um), P, zero, zero, k[s])
+        if frozen:
+            k[s, 10] = k[s, 11] = k[s, 12] = 0.0
+    for j in range(13):
+        xn[j] = x[j] + dt / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
+    n = math.sqrt(xn[6] ** 2 + xn[7] ** 2 + xn[8] ** 2 + xn[9] ** 2)
+    for j in range(6, 10):
+        xn[j] /= n
 
 
 @nb.njit(cache=True)
