@@ -67,6 +67,30 @@ def make_continuous(q: np.ndarray) -> np.ndarray:
     return q
 
 
+# PX4 (and the aerospace convention ROS calls "NED"): world north-east-down, body forward-right-down.
+NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # a proper swap: its own inverse
+FRD_TO_FLU = np.diag([1.0, -1.0, -1.0])  # a rotation by pi about body x: its own inverse
+
+
+def from_ned_frd(p_ned: np.ndarray, q_ned_frd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (N, 3) and attitudes (N, 4, FRD body -> NED world) in qr's frames (ENU world, FLU body).
+
+    ``R_enu_flu = T R_ned_frd F`` with ``T`` = :data:`NED_TO_ENU`, ``F`` = :data:`FRD_TO_FLU`; rows with NaN
+    stay NaN, the quaternions are made continuous."""
+    p = np.asarray(p_ned, dtype=float) @ NED_TO_ENU.T
+    q_in = np.asarray(q_ned_frd, dtype=float)
+    q = np.full_like(q_in, np.nan)
+    ok = np.all(np.isfinite(q_in), axis=1)
+    if ok.any():
+        q[ok] = rot_to_quat(NED_TO_ENU @ quat_to_rot(q_in[ok]) @ FRD_TO_FLU)
+    return p, make_continuous(q)
+
+
+def frd_to_flu(v: np.ndarray) -> np.ndarray:
+    """Body vectors (N, 3), e.g. gyro and accelerometer samples, from FRD to FLU axes."""
+    return np.asarray(v, dtype=float) @ FRD_TO_FLU
+
+
 def skew(v: np.ndarray) -> np.ndarray:
     """``[v]x`` (eq. 4.2) for (3,) or (N, 3)."""
     v = np.asarray(v, dtype=float)

@@ -195,3 +195,23 @@ def hummingbird_vehicle():
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
+
+
+# --- PX4 ULog: cut or corrupted binary logs ---
+
+PX4_SMALL = VEHICLES.parents[1].parent / "shared" / "data" / "px4-ulog-samples" / "sample_log_small.ulg"
+
+
+@pytest.mark.skipif(not PX4_SMALL.exists(), reason="PX4 sample logs not present")
+@FUZZ
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=4))
+def test_ulog_reader(tmp_path_factory, cut, flips):
+    from qr.ingest import ulog
+
+    data = bytearray(PX4_SMALL.read_bytes())
+    data = data[:max(int(cut * len(data)), 1)]
+    for where, value in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = value
+    path = tmp_path_factory.mktemp("ulog") / "log.ulg"
+    path.write_bytes(bytes(data))
+    _loads_or_one_line(ulog.read, path)

@@ -2,8 +2,9 @@
 
 Each adapter is a function ``read(path) -> DataFrame`` (canonical columns, SI,
 rotor speeds in the unit the source logs) registered in ``ADAPTERS``; detection
-by content is in ``detect_format``.  To add a source (PX4 ULog, ROS bag, a
-public data set), write ``ingest/<name>.py`` with such a ``read`` and register it.
+by content is in ``detect_format``.  To add a source (a ROS bag, a public data set), write
+``ingest/<name>.py`` with such a ``read`` and register it.  An adapter may set ``attrs["sources"]`` (what it
+read) and ``attrs["rotor_input"]`` (``"command"``: normalised motor commands, not rotor speeds).
 """
 
 from __future__ import annotations
@@ -14,12 +15,12 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..flight import validate_flight
-from . import cf_usd, csv, future
+from . import cf_usd, csv, future, ulog
 
 ADAPTERS = {
     "csv": csv.read,
     "cf-usd": cf_usd.read,
-    "ulog": future.ulog,
+    "ulog": ulog.read,
     "rosbag": future.rosbag,
 }
 
@@ -51,4 +52,10 @@ def read_log(src: str | Path, vehicle, fmt: str = "auto") -> pd.DataFrame:
     if fmt not in ADAPTERS:
         raise QrInputError(src, f"unknown format '{fmt}'", f"use one of auto, {', '.join(ADAPTERS)}")
     df = ADAPTERS[fmt](src)
+    if df.attrs.get("rotor_input") == "command":
+        raise QrInputError(src, f"the log has motor commands ({df.attrs['sources']['rotors']}), not measured "
+                                "rotor speeds, and command -> thrust maps (rotor_input: command) are not "
+                                "supported yet",
+                           "log ESC telemetry (PX4: esc_status, from DShot or UAVCAN ESCs) so the rotor speeds "
+                           "are in the log")
     return validate_flight(df, src, vehicle)

@@ -3,12 +3,6 @@
 from ..errors import QrInputError
 
 
-def ulog(path):
-    raise QrInputError(path, "PX4 ULog input is not supported yet",
-                       "export t, position, attitude quaternion and rotor speeds to the canonical CSV "
-                       "(docs/spec/flight-log.md), or add qr/ingest/ulog.py (see qr/ingest/__init__.py)")
-
-
 def rosbag(path):
     raise QrInputError(path, "ROS bag input is not supported yet",
                        "export the mocap pose and rotor speeds to the canonical CSV "

@@ -1,0 +1,112 @@
+"""PX4 ULog: the frames (NED/FRD -> ENU/FLU), and two real PX4 logs read against pyulog's own CSV export.
+
+The expected numbers come from ``ulog2csv`` (pyulog's command-line exporter, run here), not from the
+adapter's code path: positions are the exporter's ``y, x, -z`` at the same stamps, commands the PWM
+scaled by the log's own ``PWM_MIN``/``PWM_MAX``, gyro and accelerometer the exporter's FRD samples with
+y and z negated, interpolated onto the pose stamps.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import ROOT, VEHICLES, run_cli
+from qr.frames import from_ned_frd, frd_to_flu, quat_to_rot
+from qr.ingest import detect_format, ulog
+
+PX4 = Path(ROOT.parent / "shared" / "data" / "px4-ulog-samples")
+needs_logs = pytest.mark.skipif(not (PX4 / "sample.ulg").exists(), reason="PX4 sample logs not present")
+
+
+def _ned(roll=0.0, pitch=0.0, yaw=0.0):
+    """PX4's attitude quaternion (FRD body -> NED world) from its Euler angles (z-y-x, as PX4 defines them)."""
+    return Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat(scalar_first=True)[None, :]
+
+
+def test_a_hover_facing_north_reads_as_level_with_the_nose_along_world_y():
+    p, q = from_ned_frd(np.array([[1.0, 2.0, -3.0]]), _ned())  # 1 m north, 2 m east, 3 m up
+    assert p[0] == pytest.approx([2.0, 1.0, 3.0])
+    R = quat_to_rot(q[0])
+    assert R[:, 0] == pytest.approx([0, 1, 0], abs=1e-12)  # body forward: north = ENU y
+    assert R[:, 1] == pytest.approx([-1, 0, 0], abs=1e-12)  # body left: west
+    assert R[:, 2] == pytest.approx([0, 0, 1], abs=1e-12)  # thrust axis up
+
+
+def test_a_forward_pitch_tilts_the_thrust_towards_the_heading():
+    """Nose down by 10 deg (PX4 pitch -10 deg) while facing east: the thrust axis leans east, the nose dips."""
+    _, q = from_ned_frd(np.zeros((1, 3)), _ned(pitch=np.radians(-10), yaw=np.radians(90)))
+    R = quat_to_rot(q[0])
+    s, c = np.sin(np.radians(10)), np.cos(np.radians(10))
+    assert R[:, 2] == pytest.approx([s, 0, c], abs=1e-12)  # thrust: east and up
+    assert R[:, 0] == pytest.approx([c, 0, -s], abs=1e-12)  # nose: east, below the horizon
+    # a body rate about FRD y (nose up) is a rate about FLU -y; a specific force along FRD -z is FLU +z
+    assert frd_to_flu(np.array([[0.1, 0.2, 0.3]]))[0] == pytest.approx([0.1, -0.2, -0.3])
+
+
+def _export(tmp_path, name, topics):
+    subprocess.run([str(Path(sys.executable).parent / "ulog2csv"), "-m", ",".join(topics), "-o", str(tmp_path),
+                    str(PX4 / name)], check=True, capture_output=True)
+    stem = Path(name).stem
+    return {t: pd.read_csv(tmp_path / f"{stem}_{t}_0.csv") for t in topics}
+
+
+@needs_logs
+@pytest.mark.parametrize("name, pwm", [("sample.ulg", (1075, 1950)), ("sample_log_small.ulg", (950, 2000))])
+def test_a_real_px4_log_reads_in_qr_frames_and_units(tmp_path, name, pwm):
+    df = ulog.read(PX4 / name)
+    ref = _export(tmp_path, name, ["vehicle_local_position", "actuator_outputs", "sensor_combined"])
+    lp, out, imu = ref["vehicle_local_position"], ref["actuator_outputs"], ref["sensor_combined"]
+    stamps = lp["timestamp"].to_numpy()
+    assert len(df) == len(np.unique(stamps))
+    assert df["t"].iloc[0] == 0.0 and np.all(np.diff(df["t"]) > 0)
+    assert df["t"].to_numpy() == pytest.approx((stamps - stamps[0]) * 1e-6)
+    assert df["px"].to_numpy() == pytest.approx(lp["y"].to_numpy())  # ENU x = NED east
+    assert df["py"].to_numpy() == pytest.approx(lp["x"].to_numpy())
+    assert df["pz"].to_numpy() == pytest.approx(-lp["z"].to_numpy())
+
+    def onto(ts, v):
+        return np.interp(stamps, ts, v, left=np.nan, right=np.nan)
+
+    lo, hi = pwm  # the log's PWM_MIN / PWM_MAX (ulog_params)
+    for i in range(4):
+        c = np.clip((out[f"output[{i}]"].to_numpy() - lo) / (hi - lo), 0, 1)
+        assert df[f"u{i + 1}"].to_numpy() == pytest.approx(onto(out["timestamp"].to_numpy(), c), nan_ok=True)
+    for j, (ax, sign) in enumerate(zip("xyz", (1, -1, -1))):
+        g = onto(imu["timestamp"].to_numpy(), imu[f"gyro_rad[{j}]"].to_numpy())
+        a = onto(imu["timestamp"].to_numpy(), imu[f"accelerometer_m_s2[{j}]"].to_numpy())
+        assert df[f"g{ax}"].to_numpy() == pytest.approx(sign * g, nan_ok=True)
+        assert df[f"a{ax}"].to_numpy() == pytest.approx(sign * a, nan_ok=True)
+    # physics: level and at rest or hovering, the accelerometer reads +g along the FLU thrust axis, and
+    # the attitude's thrust axis points up
+    assert np.nanmedian(df["az"]) == pytest.approx(9.8, abs=0.4)
+    q = df[["qw", "qx", "qy", "qz"]].dropna().to_numpy()
+    assert np.median(quat_to_rot(q)[:, 2, 2]) > 0.95
+    assert df.attrs["sources"]["pose"] == "vehicle_local_position + vehicle_attitude"
+    assert df.attrs["rotor_input"] == "command"
+
+
+@needs_logs
+def test_a_ulog_is_recognised_by_its_content_not_its_name(tmp_path):
+    renamed = tmp_path / "flight.csv"
+    renamed.write_bytes((PX4 / "sample_log_small.ulg").read_bytes())
+    assert detect_format(renamed) == "ulog"
+
+
+@needs_logs
+def test_qr_ingest_of_a_px4_log_with_commands_only_says_what_is_missing(tmp_path, capsys):
+    """Both sample logs hold PWM commands, not ESC rpm: one line naming the log, the problem and the fix."""
+    out = tmp_path / "flight.csv"
+    status, _, err = run_cli(["ingest", PX4 / "sample.ulg", "--vehicle", VEHICLES / "asctec_hummingbird.yaml",
+                              "--out", out], capsys)
+    assert status == 2
+    (line,) = err.strip().splitlines()
+    assert str(PX4 / "sample.ulg") in line and "motor commands (actuator_outputs" in line
+    assert "fix: log ESC telemetry (PX4: esc_status" in line
+    assert not out.exists()
