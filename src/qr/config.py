@@ -11,7 +11,9 @@ import os
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-CONF_DIR = str(Path(os.environ.get("QR_CONF", ROOT / "conf")).resolve())
+# ``src/qr/conf`` is a link to the checkout's ``conf/``, so an installed qr (``pip install .``: the link's
+# files are package data) finds the same tree from any folder; ``QR_CONF`` points elsewhere.
+CONF_DIR = str(Path(os.environ.get("QR_CONF", Path(__file__).parent / "conf")).resolve())
 
 
 def compose(overrides=()):

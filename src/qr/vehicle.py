@@ -206,7 +206,7 @@ _Loader.add_implicit_resolver(
 def _read_yaml(path: Path, chain: tuple = ()) -> dict:
     """The file's mapping, with ``extends:`` resolved (``chain``: the files that extend this one)."""
     if not path.exists():
-        raise QrInputError(path, "vehicle file does not exist", "check the path (vehicles live in conf/vehicle/)")
+        raise QrInputError(path, "vehicle file does not exist", "check the path, or name a shipped vehicle (conf/vehicle/: asctec_hummingbird, ...)")
     if path.is_dir():
         raise QrInputError(path, "is a folder, not a vehicle file",
                            "give the vehicle's YAML file (e.g. conf/vehicle/NAME.yaml)")
@@ -255,7 +255,12 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
 
 
 def load_vehicle(path: str | Path) -> Vehicle:
-    path = Path(path)
+    """A vehicle file, or a shipped vehicle by name (``asctec_hummingbird``: ``conf/vehicle/<name>.yaml``,
+    found in an installed qr too)."""
+    from .config import vehicle_path
+
+    named = vehicle_path(str(path))
+    path = named if named.exists() else Path(path)
     return vehicle_from_dict(_read_yaml(path), path)
 
 

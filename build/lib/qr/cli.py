@@ -1,0 +1,314 @@
+"""The ``qr`` command.  Every user mistake ends in one line on stderr and exit status 2."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from . import __version__
+from .errors import EXIT_BAD_INPUT, QrInputError, QrInputWarning
+
+EXAMPLES = """\
+commands:
+  ingest     raw log -> canonical flight CSV/Parquet (validated)
+  synth      synthetic flight with hidden effects (flight.csv, vehicle.yaml, truth.json)
+  summary    per-flight table of ingested flights
+  diagnose   name what the nominal model gets wrong, extend it, measure the gain
+  evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
+  filter     Kalman filters / smoother (Hydra overrides)
+  learn      train and test residual models, -m for a sweep (Hydra overrides)
+  simulate   closed-loop study and stability analysis (Hydra overrides)
+
+examples:
+  qr ingest ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 \\
+      --vehicle conf/vehicle/crazyflie21_brushless.yaml --out flight.csv
+  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 --rate 100 --seed 1 \\
+      --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01,ry=0 --out synth1
+  qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
+  qr evaluate synth1/flight.csv --vehicle synth1/vehicle.yaml --vehicle diag1/extended_vehicle.yaml --out eval1
+  qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
+      --out summary.csv
+
+stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a sweep):
+  qr filter     Kalman filters / smoother: canonical flight -> state table + NIS report
+      qr filter filter=auto filter.flight=flight.csv filter.vehicle=vehicle.yaml filter.out=states.parquet
+  qr learn      train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
+      qr learn -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
+  qr simulate   closed-loop tracking study and stability analysis (thesis Chapter 5)
+      qr simulate simulate.task=stability
+  (python -m qr.<stage> ARGS = qr <stage> ARGS for ingest, filter, learn, diagnose, simulate, evaluate;
+   python -m qr.train = qr learn)
+
+the whole workflow (Snakefile; docs/workflow.md):
+  snakemake --cores 2                                          every stage, resumable after a kill
+  snakemake --cores 2 --configfile conf/workflow_ci.yaml       the reduced run (tests, CI)
+  snakemake --profile profiles/slurm                           on SLURM (profiles/local-cluster: local test)
+  make mlflow-ui                                               browse the runs at http://127.0.0.1:5000
+"""
+
+
+def _format_warning(message, category, filename, lineno, line=None):
+    if issubclass(category, QrInputWarning):
+        return f"qr: warning: {message}\n"
+    return f"{filename}:{lineno}: {category.__name__}: {message}\n"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
+                                "from measured flight logs.", epilog=EXAMPLES,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"qr {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+
+    s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                              "--out flight.csv")
+    s.add_argument("src", help="raw log (canonical CSV or Crazyflie uSD binary)")
+    s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
+    s.add_argument("--out", required=True, help="output flight (.csv or .parquet); never an existing file")
+    s.add_argument("--force", action="store_true", help="replace an existing --out file")
+    s.add_argument("--format", default="auto", choices=["auto", "csv", "cf-usd", "ulog", "rosbag"])
+
+    s = sub.add_parser("synth", help="synthetic flight with hidden effects",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 "
+                              "--rate 100 --seed 1 --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --out DIR\n"
+                              "effects: see docs/spec/diagnosis.md (qr.effects.CATALOG)")
+    s.add_argument("--vehicle", required=True, help="NOMINAL vehicle YAML (an extended one adds its effects)")
+    s.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
+    s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
+                   help="hidden effect in the TRUE plant, every parameter given (repeatable)")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    s.add_argument("--noise-free", action="store_true", help="log the true states without noise or dropouts")
+    s.add_argument("--position-noise", type=float, help="mocap position std, m (default 0.0005)")
+    s.add_argument("--attitude-noise", type=float, help="mocap attitude std, rad (default 0.003)")
+    s.add_argument("--rotor-noise", type=float, help="rotor speed std as a fraction of hover speed (default 0.005)")
+    s.add_argument("--dropout", type=float, help="fraction of mocap samples blank (default 0.005)")
+    s.add_argument("--low-passes", action="store_true", help="dip towards the floor every 12 s (ground effect)")
+    s.add_argument("--yaw-rate", type=float, default=0.0, help="constant yaw spin, rad/s")
+    s.add_argument("--v-max", type=float, default=2.5, help="peak horizontal speed, m/s")
+    s.add_argument("--tilt-max", type=float, default=25.0, help="peak tilt, degrees")
+
+    s = sub.add_parser("summary", help="table of ingested flights", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="example:\n  qr summary results/ingest/brushless/*.parquet "
+                              "--vehicle conf/vehicle/crazyflie21_brushless.yaml --out summary.csv\n"
+                              "writes summary.csv and its Markdown twin summary.md")
+    s.add_argument("flights", nargs="+")
+    s.add_argument("--vehicle", required=True)
+    s.add_argument("--out", required=True,
+                   help="CSV (a Markdown twin is written beside it); never an existing file")
+    s.add_argument("--force", action="store_true", help="replace existing --out files")
+
+    _flights_command(sub, "diagnose", "name what the nominal model gets wrong (docs/spec/diagnosis.md)",
+                     "examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
+                     "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
+                     "writes OUTDIR/diagnosis.json, report.md, figures/, extended_vehicle.yaml",
+                     vehicle=dict(help="vehicle YAML (nominal, or an extended one to build on)"))
+    _flights_command(sub, "evaluate", "multi-step rollout of vehicle models (docs/spec/evaluate.md)",
+                     "examples:\n  qr evaluate flight.csv --vehicle v.yaml --vehicle diag/extended_vehicle.yaml "
+                     "--out ev\n  qr evaluate a.csv b.csv --vehicle v.yaml --out ev evaluate.horizon=100\n"
+                     "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
+                     vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
+                                                        "filters and is the references' nominal)"))
+    for name, (_, help) in HYDRA_STAGES.items():  # listed here, parsed by Hydra (_parse)
+        sub.add_parser(name, help=help, add_help=False)
+    p.commands = sub.choices  # name -> subparser (for _parse)
+    return p
+
+
+# qr <stage> [HYDRA ARGS]: the stage's own Hydra entry point (overrides, -m sweeps, --help, --cfg job)
+HYDRA_STAGES = {"filter": ("qr.stages.filter", "Kalman filters / smoother on one flight (Hydra overrides)"),
+                "learn": ("qr.stages.learn", "train and test residual models; -m: a sweep (Hydra overrides)"),
+                "simulate": ("qr.stages.simulate", "closed-loop study and stability analysis (Hydra overrides)")}
+
+
+def _cmd_hydra_stage(a) -> None:
+    import importlib
+
+    module = importlib.import_module(HYDRA_STAGES[a.command][0])
+    argv, sys.argv = sys.argv, [f"qr {a.command}", *a.rest]
+    try:
+        module.main()
+    finally:
+        sys.argv = argv
+
+
+def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> None:
+    """A stage command on flights: ``FLIGHT.csv ... [KEY=VALUE ...] --vehicle V --out DIR [--force]``."""
+    s = sub.add_parser(name, help=help, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=epilog)
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
+                   help=f"canonical flight(s), and optional Hydra overrides (conf/{name}/default.yaml), "
+                        "before or after the options")
+    s.add_argument("--vehicle", required=True, **vehicle)
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+
+
+OUT_DIR_HELP = ("output folder: new, empty, or a previous qr output (only the files qr wrote there are "
+                "replaced)")
+FORCE_HELP = "write into a non-empty folder that qr did not write, beside its files (none of them is replaced)"
+
+
+def _cmd_ingest(a):
+    from .stages.ingest import ingest_file
+
+    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force)
+    print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
+
+
+def _check_synth_arguments(a):
+    """Every number of ``qr synth`` in its range, before anything is simulated."""
+    from .allowed import allowed
+    from .sim.synth import NoiseConfig
+
+    noise = NoiseConfig()
+    ranges = {  # option: (allowed values, default)
+        "duration": (allowed(gt=0, le=3600), 60.0),  # s; an hour at 100 Hz is 360 000 rows
+        "rate": (allowed(gt=0, le=10000), 100.0),  # Hz
+        "position_noise": (allowed(ge=0), noise.position_std),
+        "attitude_noise": (allowed(ge=0), noise.attitude_std),
+        "rotor_noise": (allowed(ge=0), noise.rotor_std),
+        # the first and last rows are never blanked, so 1 could never be reached
+        "dropout": (allowed(ge=0, lt=1), noise.dropout),
+        "v_max": (allowed(ge=0), 2.5),
+        "tilt_max": (allowed(ge=0, le=60), 25.0),  # degrees; the nominal controller's reach
+        "yaw_rate": (allowed(), 0.0),
+        "seed": (allowed("integer", ge=0), 0),
+    }
+    for name, (rule, default) in ranges.items():
+        val = getattr(a, name)
+        if val is not None:
+            rule.check(f"--{name.replace('_', '-')}", val, default)
+
+
+def _cmd_synth(a):
+    from dataclasses import replace
+
+    from .effects import parse_effect_spec
+    from .sim.synth import NoiseConfig, SynthConfig, write_synth
+    from .sim.trajectory import TrajectoryConfig
+    from .vehicle import load_vehicle
+
+    _check_synth_arguments(a)
+    vehicle = load_vehicle(a.vehicle)
+    effects = [parse_effect_spec(e, vehicle) for e in a.effect]
+    noise = NoiseConfig()
+    for field, val in (("position_std", a.position_noise), ("attitude_std", a.attitude_noise),
+                       ("rotor_std", a.rotor_noise), ("dropout", a.dropout)):
+        if val is not None:
+            noise = replace(noise, **{field: val})
+    traj = TrajectoryConfig(v_max=a.v_max, tilt_max_deg=a.tilt_max, yaw_rate=a.yaw_rate, low_passes=a.low_passes)
+    cfg = SynthConfig(duration=a.duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
+                      trajectory=traj)
+    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle])
+    names = ", ".join(e["name"] for e in meta["effects"]) or "none"
+    print(f"{a.out}: {meta['samples']} samples at {a.rate:g} Hz, hidden effects: {names}")
+
+
+def _cmd_summary(a):
+    from .stages.ingest import summarise_files
+
+    summarise_files(a.flights, a.vehicle, a.out, force=a.force)
+
+
+def _flights_and_overrides(a, command: str) -> tuple[list[str], list[str]]:
+    """The positional arguments of ``qr diagnose`` / ``qr evaluate``: flights, then KEY=VALUE overrides."""
+    flights = [f for f in a.flights if "=" not in f or Path(f).exists()]
+    if not flights:
+        raise QrInputError(None, "no flight given", f"qr {command} FLIGHT.csv --vehicle V.yaml --out OUTDIR")
+    return flights, [f for f in a.flights if f not in flights]
+
+
+def _cmd_diagnose(a):
+    from .stages.diagnose import run_diagnosis
+
+    flights, overrides = _flights_and_overrides(a, "diagnose")
+    run_diagnosis(flights, a.vehicle, a.out, overrides, force=a.force)
+
+
+def _cmd_evaluate(a):
+    from .stages.evaluate import run_evaluation
+
+    flights, overrides = _flights_and_overrides(a, "evaluate")
+    run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    sys.stderr.write(_format_warning(message, category, filename, lineno))
+
+
+def main(argv: list[str] | None = None) -> int:
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        warnings.showwarning = _show_warning
+        return _main(argv)
+
+
+def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
+    """The documented ``qr diagnose FLIGHT... --vehicle V --out D [KEY=VALUE ...]``: overrides may follow
+    the options (argparse's intermixed parsing, which only a parser without subcommands offers)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in HYDRA_STAGES:
+        return argparse.Namespace(command=argv[0], rest=argv[1:])
+    args, rest = parser.parse_known_args(argv)
+    if args.command in ("diagnose", "evaluate"):
+        rest = argv[argv.index(args.command) + 1:]
+        args = parser.commands[args.command].parse_intermixed_args(rest, argparse.Namespace(command=args.command))
+    elif rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    return args
+
+
+def _main(argv):
+    from .procs import Terminated, sigterm_raises
+
+    parser = _parser()
+    args = _parse(parser, argv)
+    if args.command is None:
+        parser.print_help()
+        return 0
+    # SIGTERM (kill, a cancelled job) ends the command like Ctrl-C: its temporaries are removed
+    with sigterm_raises():
+        try:
+            {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
+             "evaluate": _cmd_evaluate, **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
+        except QrInputError as e:
+            print(f"qr: error: {e}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        except (KeyboardInterrupt, SystemError) as e:
+            # an interrupt that lands while a compiled (numba) function is called comes back wrapped in
+            # a SystemError ("returned a result with an exception set")
+            stop = _interrupt_in(e)
+            if stop is None:
+                raise
+            if isinstance(stop, Terminated):
+                print("qr: terminated; nothing half-written was left", file=sys.stderr)
+                return 128 + 15
+            print("qr: interrupted; nothing half-written was left", file=sys.stderr)
+            return 130
+    return 0
+
+
+def _interrupt_in(e: BaseException):
+    """The KeyboardInterrupt (or Terminated) that ``e`` is or was raised while handling, if any."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
+def run_as(command: str) -> None:
+    """``python -m qr.<stage> ARGS``: exit with ``qr <stage> ARGS``'s status."""
+    sys.exit(main([command, *sys.argv[1:]]))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""Hydra configuration: one tree in ``conf/`` (``config.yaml`` + one group per stage).
+
+The Hydra stages (``qr filter | learn | simulate``) run through :func:`hydra_app`; library code and
+``qr diagnose`` / ``qr evaluate`` compose the same tree with overrides.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+# ``src/qr/conf`` is a link to the checkout's ``conf/``, so an installed qr (``pip install .``: the link's
+# files are package data) finds the same tree from any folder; ``QR_CONF`` points elsewhere.
+CONF_DIR = str(Path(os.environ.get("QR_CONF", Path(__file__).parent / "conf")).resolve())
+
+
+def compose(overrides=()):
+    """The resolved config with Hydra-style overrides (``['model=gpr', 'seed=3']``).
+
+    Composed once per set of overrides and process (Hydra takes ~0.6 s; a workflow job diagnoses
+    dozens of flights with the same overrides); each caller gets its own copy.
+    """
+    import copy
+
+    return copy.deepcopy(_compose_once(tuple(overrides)))
+
+
+@functools.lru_cache(maxsize=32)
+def _compose_once(overrides: tuple):
+    from hydra import compose as _compose
+    from hydra import initialize_config_dir
+
+    register_schemas()
+    with initialize_config_dir(CONF_DIR, version_base="1.3"):
+        return _compose("config", overrides=list(overrides))
+
+
+def schemas() -> dict:
+    """Config group -> the dataclass that is its structured config (Hydra's ConfigStore, name ``schema``):
+    the one place its keys, types, defaults and allowed values are written (the YAML file of the group
+    only selects it)."""
+    from .diagnose.settings import DiagnoseNode
+    from .estimation.settings import FilterNode
+    from .rollout import EvaluateNode
+
+    return {"diagnose": DiagnoseNode, "evaluate": EvaluateNode, "filter": FilterNode}
+
+
+def kind_schemas() -> dict:
+    """Groups whose options differ per kind: group -> {kind: dataclass} (ConfigStore name ``schema_<kind>``)."""
+    from .datasets import SPLITS
+
+    return {"split": SPLITS}
+
+
+@functools.lru_cache(maxsize=1)
+def register_schemas() -> None:
+    from hydra.core.config_store import ConfigStore
+
+    cs = ConfigStore.instance()
+    for group, node in schemas().items():
+        cs.store(group=group, name="schema", node=node)
+    for group, kinds in kind_schemas().items():
+        for kind, node in kinds.items():
+            cs.store(group=group, name=f"schema_{kind}", node=node)
+
+
+def _allowed(key: str):
+    """The declared field (its :class:`qr.allowed.Allowed` and default) of a structured key, or None."""
+    import inspect
+    from dataclasses import MISSING, fields, is_dataclass
+
+    group, *path = key.split(".")
+    cls = schemas().get(group)
+    if cls is None and path:  # a kind's option: the first kind that has it
+        cls = next((c for c in kind_schemas().get(group, {}).values() if path[0] in {f.name for f in fields(c)}),
+                   None)
+    for i, name in enumerate(path):
+        f = next((f for f in fields(cls) if f.name == name), None) if cls is not None and is_dataclass(cls) else None
+        if f is None:
+            return None
+        if i < len(path) - 1:
+            cls = f.default_factory if f.default_factory is not MISSING else None
+            continue
+        default = f.default if f.default_factory is MISSING else f.default_factory()
+        source = Path(inspect.getsourcefile(cls)).resolve()
+        return f.metadata.get("allowed"), default, str(source.relative_to(ROOT) if source.is_relative_to(ROOT)
+                                                       else source)
+    return None
+
+
+def _type_error(e: Exception, overrides: list[str]):
+    """A structured config's type error as qr's own one line (key, value as written, allowed values)."""
+    import yaml
+    from omegaconf.errors import ValidationError
+
+    from .allowed import show
+    from .errors import QrInputError
+
+    while e is not None and not isinstance(e, ValidationError):
+        e = e.__cause__ or e.__context__
+    if e is None:
+        return None
+    key = str(getattr(e, "full_key", "") or "")
+    raw = next((o.split("=", 1)[1] for o in overrides if "=" in o and o.split("=", 1)[0].lstrip("+~") == key), None)
+    found = _allowed(key)
+    if not key or raw is None or found is None:
+        return None
+    allowed, default, source = found
+    if allowed is None:  # a field without declared values (a switch, a name): OmegaConf's own words
+        return QrInputError(key, str(e.msg).strip().splitlines()[0], f"e.g. {key}={show(default)} (the default, {source})")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        value = raw
+    try:
+        allowed.check(key, value, default, source)
+    except QrInputError as mine:
+        return mine
+    return QrInputError(key, f"{raw!r} is not allowed", f"give {key} {allowed.describe()}")
+
+
+def to_dict(cfg) -> dict:
+    from omegaconf import OmegaConf
+
+    return OmegaConf.to_container(cfg, resolve=True)
+
+
+def experiments(names) -> list[str]:
+    """Named experiments (``conf/experiment/``) as one Hydra override, ``['+experiment=[a,b]']`` (a config
+    group is selected once; its configs merge in list order), or none."""
+    names = list(names)
+    return [f"+experiment=[{','.join(names)}]"] if names else []
+
+
+def vehicle_path(name_or_path: str) -> Path:
+    """A vehicle given by name (``conf/vehicle/<name>.yaml``) or by path."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return Path(CONF_DIR) / "vehicle" / f"{name_or_path}.yaml"
+
+
+def compose_stage(overrides, stage: str, example: str):
+    """The tree for a CLI stage whose config names its filter (``<stage>.filter``, unless ``filter=`` is
+    overridden); Hydra's long errors become one line (``example``: a KEY=VALUE the user can copy)."""
+    from .errors import QrInputError
+
+    overrides = list(overrides)
+    try:
+        cfg = compose(overrides)
+        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
+            cfg = compose(overrides + [f"filter={cfg[stage].filter}"])
+    except Exception as e:  # Hydra's errors are long; the first line says what is wrong
+        mine = _type_error(e, overrides)
+        if mine is not None:
+            raise mine from None
+        raise QrInputError("overrides", str(e).strip().splitlines()[0],
+                           f"use KEY=VALUE for keys in conf/ (e.g. {example}, filter=auto)") from None
+    return cfg
+
+
+def hydra_app(stage: str, task) -> None:
+    """Run ``task(cfg)`` as stage ``stage``'s Hydra app (overrides, ``-m`` sweeps, ``--help``, ``--cfg``).
+
+    A user mistake (:class:`qr.errors.QrInputError`) is one line and exit status 2, as everywhere in
+    ``qr``; Hydra would print a traceback.  ``functools.wraps`` keeps ``task``'s module, from which
+    Hydra names the job (the stage: ``learn``'s sweep callback acts only on its own multiruns).
+    """
+    import sys
+
+    import hydra
+
+    from .errors import EXIT_BAD_INPUT, QrInputError
+
+    @functools.wraps(task)
+    def entry(cfg):
+        try:
+            return task(cfg)
+        except QrInputError as e:
+            print(f"qr {stage}: error: {e}", file=sys.stderr)
+            sys.exit(EXIT_BAD_INPUT)
+
+    register_schemas()
+    args = sys.argv[1:]
+    if not any(a.startswith("-") for a in args):  # a single run (not a sweep, --cfg, --help): a wrong type of
+        try:                                      # a structured key is qr's one line, not Hydra's block
+            compose(args)
+        except Exception as e:
+            mine = _type_error(e, args)
+            if mine is not None:
+                print(f"qr {stage}: error: {mine}", file=sys.stderr)
+                sys.exit(EXIT_BAD_INPUT)
+    hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

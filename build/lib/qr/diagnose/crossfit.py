@@ -1,0 +1,192 @@
+"""Cross-fitting: labels and regressors from filters that saw disjoint measurements.
+
+The residual label ``f_a = m â - ...`` and many effect designs are built from
+the same estimates (``â`` in ``mass_error``, ``α̂`` in ``inertia_error``,
+``T(û)`` and ``Γ(û)`` in the label and in ``thrust_gain``...).  Regressing a
+label on its own noise "explains" that noise: with one filter, pairs such as
+``inertia_error`` + ``yaw_torque_gain`` reproduce a scaled copy of the label and
+win cross-validation on pure noise.  So the flight is filtered twice more, once
+on the even and once on the odd samples (the others treated as dropouts, with
+the noise settings of the full-flight filter): their estimation errors are
+independent, and effects are selected and fitted on labels from one half with
+regressors from the other (both pairings stacked).  The held-out evaluation uses
+the full-flight filter.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pandas as pd
+
+from ..estimation import TUNED_NIS_NOTE, estimate, tuned_noise
+from ..parallel import thread_map
+from .matched import add_matched_rotor_signals
+
+MEASURED = ["px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"]
+
+
+def fixed_settings(filter_cfg: dict, report: dict) -> dict:
+    """The filter settings the full flight ended up with (tuned values frozen)."""
+    cfg = copy.deepcopy(dict(filter_cfg))
+    tuned = (report or {}).get("tuning") or {}
+    if tuned:
+        cfg.setdefault("tune", {})["enabled"] = False
+        for f, v in tuned.items():
+            cfg.setdefault(f, {})
+            cfg[f] = dict(cfg[f], q=v["q"], r=v["r"])
+    return cfg
+
+
+def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1.0) -> dict:
+    """Frozen settings with the rotor filters' bandwidth raised to the attitude and position filters'.
+
+    The labels subtract ``T(û)`` from ``m â`` and ``Γ(û)`` from ``J α̂``; a rotor
+    filter smoother than the others leaves ``(1 - H) J α`` in the torque label,
+    which ``inertia_error`` or ``thrust_gain`` would then "explain".  Rotor speeds
+    are measured directly and precisely, so matching costs little noise.
+    """
+    from ..estimation.settings import resolve
+    from ..estimation.tuning import ORDER, corner_hz
+
+    cfg = resolve(fixed_settings(filter_cfg, report))
+    q_att = float(np.exp(np.mean(np.log(np.atleast_1d(cfg["attitude"]["q"])))))
+    f = min(corner_hz(cfg["position"]["q"], cfg["position"]["r"], ORDER["position"]),
+            corner_hz(q_att, cfg["attitude"]["r"], ORDER["attitude"]))
+    r_m = cfg["motor"]["r"]
+    q_m = r_m * (2 * np.pi * f) ** (2 * ORDER["motor"])
+    cfg["motor"]["q"] = max(float(cfg["motor"]["q"]), float(q_m))
+    # optionally widen every filter alike: less attenuation (bias) for more noise
+    for name in ("position", "attitude", "motor"):
+        k = bandwidth_factor ** (2 * ORDER[name])
+        q = cfg[name]["q"]
+        cfg[name]["q"] = [x * k for x in q] if isinstance(q, list) else q * k
+    cfg["tune"]["enabled"] = False
+    return cfg
+
+
+def _half(flight: pd.DataFrame, parity: int) -> pd.DataFrame:
+    """The flight with every other sample's measurements removed (dropouts), keeping ``parity``'s."""
+    f = flight.copy()
+    f.loc[f.index % 2 != parity, MEASURED] = np.nan
+    # keep the first rows measured so each filter starts from data
+    f.loc[:1, MEASURED] = flight.loc[:1, MEASURED]
+    return f
+
+
+def _states(flight: pd.DataFrame, vehicle, cfg: dict) -> pd.DataFrame:
+    st, _ = estimate(flight, vehicle, cfg)
+    return add_matched_rotor_signals(st, flight, cfg)
+
+
+# ---- the filter stage's cross-fit file: every segment's estimates, written once, read by each diagnosis ----
+
+PARTS = ("full", "even", "odd")
+MIN_SEGMENT_S = 1.0  # shorter segments are not written (no diagnosis setting uses one; it filters them itself)
+
+
+def key(filter_cfg: dict, report: dict, vehicle) -> str:
+    """What the estimates depend on: the matched filter settings and the rotor-speed scale."""
+    import json
+
+    return json.dumps({"filter": matched_settings(filter_cfg, report), "hover_speed": float(vehicle.hover_speed)},
+                      sort_keys=True, default=str)
+
+
+def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
+    """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
+
+    ``report``: the filter stage's report of this flight (its tuned noise values are
+    reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
+    """
+    if report is None:
+        report = {"tuning": tuned_noise(flight, vehicle, filter_cfg)}
+    matched = matched_settings(filter_cfg, report)
+    # the full flight and its two halves: three independent filters, run side by side
+    st, even, odd = thread_map(lambda f: _states(f, vehicle, matched),
+                               (flight, _half(flight, 0), _half(flight, 1)))
+    return st, (even, odd), report
+
+
+def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) -> dict | None:
+    """A tuning filter's (``filter=auto``) noise values (report keys ``tuning``, ``tuned_on_s``,
+    ``nis_note``), tuned on the flight's longest airborne, gap-free
+    segment: ground rows (rotors idle, vehicle resting) would bias the noise values (10 s of them
+    moved a hidden kz from 0.044 to 0.095).  The diagnosis on the command line tunes on the same
+    rows (:func:`prepare_flight` on its longest segment first), so the filter stage and the command
+    line freeze the same values.  None: nothing to tune, no vehicle, or a log that never flew."""
+    from ..errors import QrInputError
+    from ..estimation.settings import resolve
+    from ..segments import flight_segments
+
+    if vehicle is None or not resolve(filter_cfg)["tune"]["enabled"]:
+        return None
+    try:
+        used = flight_segments(flight, vehicle, 0.0).used
+    except QrInputError:  # never airborne: the filter stage tunes on the whole log
+        return None
+    if not used:
+        return None
+    seg = max(used, key=lambda s: s.window[1] - s.window[0])  # the first of equals, as sorted() keeps
+    return {"tuning": tuned_noise(seg.rows, vehicle, filter_cfg, progress=progress),
+            "tuned_on_s": [seg.window[0], seg.window[1]], "nis_note": TUNED_NIS_NOTE}
+
+
+def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None,
+                      min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
+    """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
+    (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
+    diagnosis's own recipe (:func:`prepare_flight`), the longest segment first, where a
+    tuning filter is tuned."""
+    from ..segments import flight_segments
+
+    tables = []
+    for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):
+        st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
+        for part, table in zip(PARTS, (st, *pair)):
+            tables.append(table.assign(segment_start=seg.window[0], part=part))
+    return pd.concat(tables, ignore_index=True), report
+
+
+class Estimates:
+    """A cross-fit file opened for one diagnosis: the tables of a segment if the file has them and was
+    made with the same filter settings and rotor-speed scale (else None: the caller filters)."""
+
+    def __init__(self, path, filter_cfg: dict, report: dict, vehicle):
+        import pyarrow.parquet as pq
+
+        meta = pq.read_schema(path).metadata or {}
+        self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, report, vehicle)
+        self.table = pd.read_parquet(path) if self.ok else None
+
+    def get(self, start: float):
+        if not self.ok:
+            return None
+        rows = self.table[self.table["segment_start"] == start]
+        if rows.empty:
+            return None
+        out = [rows[rows["part"] == p].drop(columns=["segment_start", "part"]).reset_index(drop=True)
+               for p in PARTS]
+        return out[0], (out[1], out[2])
+
+
+def full_estimates(path) -> pd.DataFrame:
+    """The full-flight ("full") estimates of every segment in a cross-fit file, in time order: the state
+    table the diagnosis builds its labels from (matched settings, matched rotor signals), which the
+    learning data set uses too, so both learn the same ``f_a`` and ``tau_a``."""
+    table = pd.read_parquet(path)
+    full = table[table["part"] == "full"].drop(columns=["segment_start", "part"])
+    return full.sort_values("t", kind="stable").reset_index(drop=True)
+
+
+def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, report: dict, vehicle) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from ..atomic import atomic_path
+
+    t = pa.Table.from_pandas(table, preserve_index=False)
+    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"qr.crossfit_key": key(filter_cfg, report, vehicle).encode()})
+    with atomic_path(out, suffix=".parquet") as tmp:
+        pq.write_table(t, tmp)

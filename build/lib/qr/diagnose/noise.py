@@ -1,0 +1,79 @@
+"""The noise floor: how much of the residual is estimation noise, per sample and axis.
+
+From the filter's posterior standard deviations (``sd_`` columns of the state
+table), propagated to first order through the residual labels:
+
+    f_a = m a_b - m R^T g - T e3     var(f_a,i) = m² Σ_j R_ji² sd(a_j)² + m² Σ_j ([g_b]×)_ij² sd(θ_j)²
+                                                  + δ_i3 Σ_k (∂T/∂u_k sd(u_k))²
+    τ_a = J α - (Jω)×ω - Γ          var(τ_a,i) = J_i² sd(α_i)² + Σ_k (∂Γ_i/∂u_k sd(u_k))²
+
+(``g_b = Rᵀ g``; a body-frame attitude error ``δθ`` moves it by ``g_b × δθ``.)
+
+A posterior covariance is only as right as the filter's noise model, and the
+labels use rotor signals smoothed like the motion estimates, not the rotor
+filter's own.  So the level is calibrated per axis on the data
+(:func:`calibrate`): the cross-fitting filters saw disjoint samples, so the
+difference of their labels at the same stamps is pure estimation noise, with
+variance ``var_even + var_odd``; its ratio to the propagated variances scales
+the floor.  Without ``sd_`` columns, a robust first-difference estimate of
+white noise is used.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..frames import GRAVITY, skew
+from ..states import ACCELERATION, ANGULAR_ACCELERATION, ROTORS
+
+ATTITUDE_SD = ["sd_thx", "sd_thy", "sd_thz"]
+
+
+def noise_sd(states: pd.DataFrame, R: np.ndarray, vehicle, residual: np.ndarray) -> np.ndarray:
+    """Per-sample noise standard deviation of ``[f_a, τ_a]`` (N, 6), before calibration."""
+    sd_cols = [f"sd_{c}" for c in ACCELERATION + ANGULAR_ACCELERATION + ROTORS]
+    if not all(c in states for c in sd_cols):
+        return np.broadcast_to(difference_noise(residual), residual.shape).copy()
+    sd_a = states[[f"sd_{c}" for c in ACCELERATION]].to_numpy()
+    sd_al = states[[f"sd_{c}" for c in ANGULAR_ACCELERATION]].to_numpy()
+    sd_u = states[[f"sd_{c}" for c in ROTORS]].to_numpy()
+    u = states[ROTORS].to_numpy()
+    B = vehicle.rotors.matrix  # d wrench / d u_k = 2 u_k B[:, k]
+    dW = 2.0 * (u * sd_u)[:, None, :] * B[None, :, :]  # (N, 4 wrench rows, 4 rotors)
+    var_w = (dW**2).sum(axis=2)
+    var = np.empty((len(states), 6))
+    var[:, 0:3] = vehicle.mass**2 * np.einsum("nji,nj->ni", R**2, sd_a**2)
+    if all(c in states for c in ATTITUDE_SD):
+        g_b = np.einsum("nji,j->ni", R, GRAVITY)
+        var[:, 0:3] += vehicle.mass**2 * np.einsum("nij,nj->ni", skew(g_b) ** 2, states[ATTITUDE_SD].to_numpy() ** 2)
+    var[:, 2] += var_w[:, 0]
+    var[:, 3:6] = (vehicle.inertia * sd_al) ** 2 + var_w[:, 1:]
+    return np.sqrt(var)
+
+
+def calibrate(fitprep, *others) -> list[float]:
+    """Scale the noise floor of ``fitprep`` (and ``others``) per axis to the label noise the data show.
+
+    ``fitprep`` stacks the cross-fitting halves (labels of the even-sample filter, then of the
+    odd-sample one, at the same stamps).  Returns the per-axis scale applied to the standard deviations.
+    """
+    n = len(fitprep.t) // 2
+    ya, yb, sa, sb = fitprep.y[:n], fitprep.y[n:], fitprep.sd[:n], fitprep.sd[n:]
+    ok = fitprep.train[:n] & np.isfinite(ya).all(axis=1) & np.isfinite(yb).all(axis=1) \
+        & np.isfinite(sa).all(axis=1) & np.isfinite(sb).all(axis=1)
+    if ok.sum() < 100:
+        return [1.0] * 6
+    emp = np.mean((ya[ok] - yb[ok]) ** 2, axis=0)
+    model = np.mean(sa[ok] ** 2 + sb[ok] ** 2, axis=0)
+    scale = np.sqrt(np.where(model > 0, emp / np.maximum(model, 1e-300), 1.0))
+    for p in {id(x): x for x in (fitprep, *others)}.values():
+        p.sd = p.sd * scale
+    return scale.tolist()
+
+
+def difference_noise(residual: np.ndarray) -> np.ndarray:
+    """White-noise level per axis from first differences (robust: MAD)."""
+    d = np.diff(residual, axis=0)
+    d = d[np.isfinite(d).all(axis=1)]
+    return 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0) / np.sqrt(2)

@@ -1,0 +1,63 @@
+"""Filter consistency: normalised innovation squared (NIS) and the innovation likelihood.
+
+For a consistent filter the innovations ``y_k ~ N(0, S_k)`` are white, so
+``NIS_k = y_kᵀ S_k⁻¹ y_k ~ χ²(m)`` and the mean of ``n`` of them times ``n`` is
+``χ²(n m)``.  A mean outside that distribution's two-sided band flags the
+filter: above it the filter is over-confident (noise understated: the
+estimates are noisier than their reported ``sd_``), below it under-confident.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+
+@dataclass
+class Innovations:
+    """Per-sample innovation statistics of one filter (NaN where there was no update)."""
+
+    nis: np.ndarray  # (N, c) normalised innovation squared yᵀ S⁻¹ y, one column per channel
+    logdet: np.ndarray  # (N, c) log det S
+    dof: int  # measurement dimension of one column
+
+
+def log_likelihood(inn: Innovations, keep: np.ndarray | None = None) -> float:
+    """Gaussian innovation log-likelihood ``-½ Σ (NIS + log det S + m log 2π)`` over the kept samples."""
+    ok = np.isfinite(inn.nis)
+    if keep is not None:
+        ok &= keep[:, None]
+    return float(-0.5 * (np.sum(inn.nis[ok]) + np.sum(inn.logdet[ok]) + ok.sum() * inn.dof * math.log(2 * math.pi)))
+
+
+def nis_stats(nis: np.ndarray, dof: int, confidence: float = 0.95) -> dict:
+    """Mean NIS, its χ² band and the verdict for one channel (NaNs ignored)."""
+    v = np.asarray(nis, dtype=float)
+    v = v[np.isfinite(v)]
+    n = int(v.size)
+    if n == 0:
+        return {"n": 0, "dof": dof, "mean": None, "band": None, "consistent": None, "verdict": "no updates"}
+    tail = (1 - confidence) / 2
+    lo, hi = chi2.ppf([tail, 1 - tail], n * dof) / n
+    slo, shi = chi2.ppf([tail, 1 - tail], dof)
+    mean = float(v.mean())
+    consistent = bool(lo <= mean <= hi)
+    verdict = ("consistent" if consistent else
+               "over-confident: NIS too large, noise understated (raise q or r)" if mean > hi else
+               "under-confident: NIS too small, noise overstated (lower q or r)")
+    return {"n": n, "dof": dof, "mean": mean, "band": [float(lo), float(hi)], "consistent": consistent,
+            "verdict": verdict, "outside_sample_band": float(np.mean((v < slo) | (v > shi))),
+            "expected_outside": 1 - confidence}
+
+
+def report(inn: Innovations, names: list[str] | None, keep: np.ndarray, confidence: float) -> dict:
+    """NIS statistics of a filter; with several channels (rotors) one entry each plus their pool."""
+    nis = np.where(keep[:, None], inn.nis, np.nan)
+    if nis.shape[1] == 1:
+        return nis_stats(nis[:, 0], inn.dof, confidence)
+    out = {name: nis_stats(nis[:, i], inn.dof, confidence) for i, name in enumerate(names)}
+    out["all"] = nis_stats(nis.ravel(), inn.dof, confidence)
+    return out

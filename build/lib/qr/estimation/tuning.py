@@ -1,0 +1,98 @@
+"""``filter=auto``: noise intensities that maximise the innovation likelihood of the flight itself.
+
+For each filter the unknowns are the process-noise intensity ``q`` and the
+measurement variance ``r``.  Two facts make this a 1-D search:
+
+- The gains, hence the estimates and innovations, depend only on ``q / r``
+  (scaling Q, R and P together scales S and nothing else), so for a given
+  ratio the likelihood is maximised in closed form by ``c = mean NIS / m``,
+  giving ``q = c λ r₀`` and ``r = c r₀`` (a profile likelihood).
+- The ratio is searched as the filter's corner frequency
+  ``f_c = λ^(1/2m) / 2π`` (the bandwidth of an order-``m`` chain), on a log grid
+  from ``tune.min_corner_hz`` to Nyquist, refined by bounded Brent around the
+  best grid point.
+
+``r₀`` starts from a robust estimate (third differences: ``var Δ³y = 20 σ²``)
+and a second round restarts from the first round's ``r`` (it only enters
+through the initial covariance).  The first ``nis.burn_in_s`` seconds are
+left out of the likelihood, as of the NIS report.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from . import attitude_eskf, motor_kf, position_kf
+from .nis import Innovations
+
+ORDER = {"position": 4, "attitude": 4, "motor": 3}
+
+
+def corner_hz(q: float, r: float, m: int) -> float:
+    return (q / r) ** (1 / (2 * m)) / (2 * math.pi)
+
+
+def robust_noise(y: np.ndarray) -> float:
+    """Measurement variance from third differences (MAD, per column, averaged)."""
+    d3 = np.diff(np.asarray(y, dtype=float).reshape(len(y), -1), n=3, axis=0)
+    out = []
+    for col in d3.T:
+        col = col[np.isfinite(col)]
+        if col.size:
+            out.append((1.4826 * np.median(np.abs(col - np.median(col)))) ** 2 / 20)
+    v = float(np.mean(out)) if out else 0.0
+    return v if v > 0 else 1e-12
+
+
+def _run(kind: str, t, meas, q, r, speed_scale, reset_deg) -> Innovations:
+    if kind == "position":
+        return position_kf.filter_fast(t, meas, q, r, "exact")[2]
+    if kind == "attitude":
+        return attitude_eskf.filter_fast(t, meas, q, r, "exact", reset_deg=reset_deg)[4]
+    return motor_kf.filter_fast(t, meas, q, r, "exact", speed_scale=speed_scale)[2]
+
+
+def _profile(inn: Innovations, keep: np.ndarray):
+    ok = np.isfinite(inn.nis) & keep[:, None]
+    n = int(ok.sum())
+    c = float(np.sum(inn.nis[ok])) / (n * inn.dof)
+    ll = -0.5 * (n * inn.dof * (1 + math.log(c) + math.log(2 * math.pi)) + float(np.sum(inn.logdet[ok])))
+    return ll, c
+
+
+def tune(kind: str, t, meas, keep, min_corner_hz=0.05, grid=13, rounds=2, speed_scale=None,
+         reset_deg=attitude_eskf.RESET_DEG) -> dict:
+    """Maximum-likelihood ``q`` and ``r`` of one filter (``exact`` discretisation)."""
+    m = ORDER[kind]
+    if kind == "attitude":
+        r0 = 16 / 3 * robust_noise(meas)  # |δq|² = |δθ|²/4 = 3σ²/4, over 4 components
+    else:
+        r0 = robust_noise(meas)
+    f_hi = 0.5 / float(np.median(np.diff(t)))
+    f_lo = min(float(min_corner_hz), f_hi / 10)
+    evals = 0
+    for _ in range(rounds):
+        cache = {}
+
+        def neg(logf, r0=r0, cache=cache):
+            lam = (2 * math.pi * math.exp(logf)) ** (2 * m)
+            ll, c = _profile(_run(kind, t, meas, lam * r0, r0, speed_scale, reset_deg), keep)
+            cache[logf] = (ll, c, lam)
+            return -ll
+
+        xs = np.linspace(math.log(f_lo), math.log(f_hi), grid)
+        vals = [neg(x) for x in xs]
+        i = int(np.argmin(vals))
+        lo, hi = xs[max(i - 1, 0)], xs[min(i + 1, grid - 1)]
+        minimize_scalar(neg, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+        best = min(cache, key=lambda x: -cache[x][0])
+        ll, c, lam = cache[best]
+        evals += len(cache)
+        r0 = c * r0
+        q = lam * r0
+    return {"q": float(q), "r": float(r0), "corner_hz": corner_hz(q, r0, m), "log_likelihood": float(ll),
+            "at_bound": bool(abs(best - math.log(f_lo)) < 1e-6 or abs(best - math.log(f_hi)) < 1e-6),
+            "evaluations": evals}

@@ -1,0 +1,132 @@
+"""Crazyflie uSD-card binary log (format version 2), as in ../shared/data/imrclab-crazyflie.
+
+Layout (SOURCE.md there): magic 0xBC, uint16 version, uint16 number of event
+types; per type uint16 id, name\\0, uint16 number of variables, 'name(t)\\0' each
+(struct codes); then records (uint16 id, uint64 µs time stamp, packed values)
+up to a trailing CRC32 (zlib) of everything before it.  Little-endian.
+
+The canonical flight takes its rows from the motion-capture pose ``estPose``
+(``locSrv.*``, stamped on the vehicle's clock) and interpolates the 500 Hz block
+(rotor ``rpm``, gyro, accelerometer, battery) onto those stamps.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import QrInputError
+from ..frames import G
+
+MAGIC = b"\xbc"
+POSE_EVENT = "estPose"
+FAST_EVENT = "fixedFrequency"
+DEG = np.pi / 180.0
+
+
+def _fail(path, problem, fix="copy the log again from the uSD card; a partial or damaged file cannot be trusted"):
+    return QrInputError(path, problem, fix)
+
+
+def decode(path: str | Path) -> dict[str, pd.DataFrame]:
+    """All events of a log as DataFrames with a ``timestamp_us`` column, CRC-checked."""
+    path = Path(path)
+    data = path.read_bytes()
+    if len(data) < 9 or data[:1] != MAGIC:
+        raise _fail(path, "not a Crazyflie uSD log (magic byte 0xBC missing)",
+                    "pass --format csv for a canonical CSV, or the raw uSD file")
+    body, crc = data[:-4], data[-4:]
+    if zlib.crc32(body) & 0xFFFFFFFF != struct.unpack("<I", crc)[0]:
+        raise _fail(path, "CRC32 check failed: the log is truncated or corrupted")
+    version, n_types = struct.unpack_from("<HH", body, 1)
+    if version != 2:
+        raise _fail(path, f"uSD log format version {version}, expected 2",
+                    "convert it with the Crazyflie tools (cfusdlog) to the canonical CSV")
+    pos = 5
+    types = {}
+    try:
+        for _ in range(n_types):
+            (eid,) = struct.unpack_from("<H", body, pos)
+            pos += 2
+            end = body.index(b"\0", pos)
+            name = body[pos:end].decode()
+            pos = end + 1
+            (nvars,) = struct.unpack_from("<H", body, pos)
+            pos += 2
+            names, codes = [], ""
+            for _ in range(nvars):
+                end = body.index(b"\0", pos)
+                var = body[pos:end].decode()
+                pos = end + 1
+                names.append(var[: var.index("(")])
+                codes += var[var.index("(") + 1: var.index(")")]
+            fmt = struct.Struct("<" + codes)
+            types[eid] = (name, names, fmt)
+    except (ValueError, struct.error, UnicodeDecodeError):
+        raise _fail(path, "the log header cannot be decoded") from None
+
+    rows = {eid: [] for eid in types}
+    stamps = {eid: [] for eid in types}
+    head = struct.Struct("<HQ")
+    n = len(body)
+    while pos < n:
+        if pos + head.size > n:
+            raise _fail(path, f"record header cut off at byte {pos}")
+        eid, ts = head.unpack_from(body, pos)
+        pos += head.size
+        if eid not in types:
+            raise _fail(path, f"unknown event id {eid} at byte {pos - head.size}")
+        fmt = types[eid][2]
+        if pos + fmt.size > n:
+            raise _fail(path, f"record cut off at byte {pos}")
+        rows[eid].append(fmt.unpack_from(body, pos))
+        stamps[eid].append(ts)
+        pos += fmt.size
+    out = {}
+    for eid, (name, names, _) in types.items():
+        df = pd.DataFrame(rows[eid], columns=names, dtype="float64")
+        df.insert(0, "timestamp_us", np.array(stamps[eid], dtype=np.int64))
+        out[name] = df
+    return out
+
+
+def read(path: str | Path) -> pd.DataFrame:
+    path = Path(path)
+    events = decode(path)
+    if POSE_EVENT not in events or FAST_EVENT not in events:
+        raise _fail(path, f"log lacks the '{POSE_EVENT}' or '{FAST_EVENT}' event",
+                    "log motion capture (on:estPose) and the 500 Hz block (on:fixedFrequency) in config.txt")
+    pose = events[POSE_EVENT].drop_duplicates("timestamp_us", keep="last").sort_values("timestamp_us")
+    fast = events[FAST_EVENT].drop_duplicates("timestamp_us", keep="last").sort_values("timestamp_us")
+    if len(pose) < 2:
+        raise _fail(path, "log holds fewer than two motion-capture poses",
+                    "check that the mocap pose reached the vehicle during the flight")
+    need = [f"rpm.m{i}" for i in range(1, 5)]
+    if any(c not in fast for c in need):
+        raise _fail(path, "log has no rotor speeds (rpm.m1..m4)", "fit the RPM deck and log rpm.m1..m4")
+    t0 = pose["timestamp_us"].iloc[0]
+    t = (pose["timestamp_us"].to_numpy() - t0) * 1e-6
+    tf = (fast["timestamp_us"].to_numpy() - t0) * 1e-6
+
+    def interp(col, scale=1.0):
+        return np.interp(t, tf, fast[col].to_numpy() * scale, left=np.nan, right=np.nan)
+
+    df = pd.DataFrame({
+        "t": t,
+        "px": pose["locSrv.x"].to_numpy(), "py": pose["locSrv.y"].to_numpy(), "pz": pose["locSrv.z"].to_numpy(),
+        "qw": pose["locSrv.qw"].to_numpy(), "qx": pose["locSrv.qx"].to_numpy(),
+        "qy": pose["locSrv.qy"].to_numpy(), "qz": pose["locSrv.qz"].to_numpy(),
+    })
+    for i in range(1, 5):
+        df[f"u{i}"] = interp(f"rpm.m{i}")
+    optional = {"ax": ("acc.x", G), "ay": ("acc.y", G), "az": ("acc.z", G),  # g -> m/s^2, specific force
+                "gx": ("gyro.x", DEG), "gy": ("gyro.y", DEG), "gz": ("gyro.z", DEG),  # deg/s -> rad/s
+                "vbat": ("pm.vbatMV", 1e-3)}  # mV -> V
+    for col, (src, scale) in optional.items():
+        if src in fast:
+            df[col] = interp(src, scale)
+    return df

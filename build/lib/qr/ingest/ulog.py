@@ -1,0 +1,158 @@
+"""PX4 ULog (``pyulog``): a PX4 flight in the canonical frames and units.
+
+- Pose: ``vehicle_mocap_odometry`` or ``vehicle_visual_odometry`` (external motion capture or vision:
+  position and attitude in one message) where logged; else ``vehicle_local_position`` (x, y, z) with
+  ``vehicle_attitude`` (q), EKF2's own estimate, which has already fused the IMU.
+- Rotor signals: ``esc_status`` (ESC telemetry, ``esc[i].esc_rpm``: rpm) where logged; else the
+  normalised motor commands, ``actuator_motors`` (``control[i]``, 0..1) or ``actuator_outputs``
+  (``output[i]``, PWM, scaled to 0..1 with ``PWM_MAIN_MINi``/``MAXi`` or ``PWM_MIN``/``PWM_MAX``).
+  Motors keep PX4's numbering (u1 = motor 1): a PX4 vehicle file lists its rotors in that order.
+- IMU: ``sensor_combined`` gyro (rad/s) and accelerometer (m/s², specific force); ``battery_status``
+  voltage as ``vbat``.
+
+PX4 is NED world / FRD body; :func:`qr.frames.from_ned_frd` converts (the one place). Stamps are the
+pose stream's (the autopilot clock, every topic on it), from its first sample; the other streams are
+interpolated onto them (attitude by slerp), NaN outside their own span. ``attrs["sources"]`` names the
+topics used and ``attrs["rotor_input"]`` is ``"speed"`` or ``"command"``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import QrInputError
+from ..frames import frd_to_flu, from_ned_frd
+
+POSE_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
+
+
+class _Log:
+    def __init__(self, path: Path):
+        from pyulog import ULog
+
+        try:
+            with open(path, "rb") as f, contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its warnings
+                self.ulog = ULog(f)
+        except Exception as e:  # pyulog raises bare exceptions on a damaged file
+            raise QrInputError(path, f"not a readable PX4 ULog ({type(e).__name__}: {e})",
+                               "copy the .ulg again from the SD card; a partial file cannot be read") from None
+        self.path = path
+        self.params = self.ulog.initial_parameters
+
+    def topics(self) -> list[str]:
+        return sorted({d.name for d in self.ulog.data_list})
+
+    def topic(self, name: str, fields: list[str]) -> dict | None:
+        """The first instance of ``name`` holding every field (None if none does)."""
+        for d in sorted(self.ulog.data_list, key=lambda d: d.multi_id):
+            if d.name == name and all(f in d.data for f in fields) and len(d.data["timestamp"]) >= 2:
+                return d.data
+        return None
+
+    def missing(self, what: str, fix: str):
+        return QrInputError(self.path, f"the log has no {what} (its topics: {', '.join(self.topics())})", fix)
+
+
+def _stamps(d: dict) -> np.ndarray:
+    return np.asarray(d.get("timestamp_sample", d["timestamp"]), dtype=np.int64)
+
+
+def _pose(log: _Log) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Stamps (µs), NED positions (N, 3), FRD → NED quaternions (N, 4) and the source's name."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    q_fields = [f"q[{i}]" for i in range(4)]
+    for name in POSE_TOPICS:
+        for pos in (["position[0]", "position[1]", "position[2]"], ["x", "y", "z"]):
+            d = log.topic(name, pos + q_fields)
+            if d is not None:
+                return (_stamps(d), np.column_stack([d[f] for f in pos]), np.column_stack([d[f] for f in q_fields]),
+                        name)
+    lp = log.topic("vehicle_local_position", ["x", "y", "z"])
+    att = log.topic("vehicle_attitude", q_fields)
+    if lp is None or att is None:
+        raise log.missing("pose (vehicle_mocap_odometry, vehicle_visual_odometry, or vehicle_local_position "
+                          "with vehicle_attitude)", "log the position and attitude topics (SDLOG_PROFILE)")
+    t, ta = _stamps(lp), _stamps(att)
+    qa = np.column_stack([att[f] for f in q_fields])
+    ok = np.all(np.isfinite(qa), axis=1) & (np.linalg.norm(qa, axis=1) > 0.5)
+    ta, qa = ta[ok], qa[ok]
+    order = np.unique(ta, return_index=True)[1]
+    ta, qa = ta[order], qa[order]
+    q = np.full((len(t), 4), np.nan)
+    inside = (t >= ta[0]) & (t <= ta[-1])
+    if inside.any() and len(ta) >= 2:
+        slerp = Slerp(ta.astype(float), Rotation.from_quat(qa, scalar_first=True))
+        q[inside] = slerp(t[inside].astype(float)).as_quat(scalar_first=True)
+    return t, np.column_stack([lp["x"], lp["y"], lp["z"]]), q, "vehicle_local_position + vehicle_attitude"
+
+
+def _pwm_range(log: _Log, i: int) -> tuple[float, float]:
+    lo, hi = log.params.get(f"PWM_MAIN_MIN{i + 1}", -1), log.params.get(f"PWM_MAIN_MAX{i + 1}", -1)
+    lo = lo if lo is not None and lo >= 0 else log.params.get("PWM_MIN", 1000)
+    hi = hi if hi is not None and hi >= 0 else log.params.get("PWM_MAX", 2000)
+    return float(lo), float(hi)
+
+
+def _rotors(log: _Log) -> tuple[list[np.ndarray], np.ndarray, str, str]:
+    """Per-motor signals, their stamps (µs), ``"speed"`` or ``"command"`` and the source's name."""
+    rpm = [f"esc[{i}].esc_rpm" for i in range(4)]
+    d = log.topic("esc_status", rpm)
+    if d is not None:
+        return [np.asarray(d[f], float) for f in rpm], _stamps(d), "speed", "esc_status (rpm)"
+    d = log.topic("actuator_motors", [f"control[{i}]" for i in range(4)])
+    if d is not None:
+        return [np.asarray(d[f"control[{i}]"], float) for i in range(4)], _stamps(d), "command", "actuator_motors"
+    d = log.topic("actuator_outputs", [f"output[{i}]" for i in range(4)])
+    if d is not None:
+        sig = []
+        for i in range(4):
+            lo, hi = _pwm_range(log, i)
+            sig.append(np.clip((np.asarray(d[f"output[{i}]"], float) - lo) / (hi - lo), 0.0, 1.0))
+        return sig, _stamps(d), "command", "actuator_outputs (PWM scaled by PWM_MIN/PWM_MAX)"
+    raise log.missing("rotor signal (esc_status, actuator_motors or actuator_outputs)",
+                      "log esc_status (ESC telemetry) or the actuator outputs")
+
+
+def read(path: str | Path) -> pd.DataFrame:
+    path = Path(path)
+    log = _Log(path)
+    t_us, p_ned, q_ned, pose_src = _pose(log)
+    keep = np.concatenate([[True], np.diff(t_us) > 0])  # repeated stamps: the first sample stands
+    t_us, p_ned, q_ned = t_us[keep], p_ned[keep], q_ned[keep]
+    t0 = t_us[0]
+    t = (t_us - t0) * 1e-6
+
+    def onto(ts_us, values):
+        ts = (ts_us - t0) * 1e-6
+        order = np.argsort(ts, kind="stable")
+        return np.interp(t, ts[order], np.asarray(values, float)[order], left=np.nan, right=np.nan)
+
+    p, q = from_ned_frd(p_ned, q_ned)
+    df = pd.DataFrame({"t": t, "px": p[:, 0], "py": p[:, 1], "pz": p[:, 2],
+                       "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    signals, ts, kind, rotor_src = _rotors(log)
+    for i, sig in enumerate(signals):
+        df[f"u{i + 1}"] = onto(ts, sig)
+    sources = {"pose": pose_src, "rotors": rotor_src}
+    imu = log.topic("sensor_combined", [f"gyro_rad[{i}]" for i in range(3)] + [f"accelerometer_m_s2[{i}]" for i in range(3)])
+    if imu is not None:
+        ts = np.asarray(imu["timestamp"], np.int64)
+        g = frd_to_flu(np.column_stack([imu[f"gyro_rad[{i}]"] for i in range(3)]))
+        a = frd_to_flu(np.column_stack([imu[f"accelerometer_m_s2[{i}]"] for i in range(3)]))
+        for j, ax in enumerate("xyz"):
+            df[f"g{ax}"] = onto(ts, g[:, j])
+            df[f"a{ax}"] = onto(ts, a[:, j])
+        sources["imu"] = "sensor_combined"
+    bat = log.topic("battery_status", ["voltage_v"])
+    if bat is not None:
+        df["vbat"] = onto(np.asarray(bat["timestamp"], np.int64), bat["voltage_v"])
+        sources["vbat"] = "battery_status"
+    df.attrs["sources"] = sources
+    df.attrs["rotor_input"] = kind
+    return df

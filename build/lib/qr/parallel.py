@@ -1,0 +1,31 @@
+"""Threads for independent compiled work (the filters of one flight, its cross-fitting halves).
+
+The compiled kernels release the GIL (``nogil``), so threads run them in parallel without copying
+the data to other processes.  One knob for all of qr's parallelism: numba's thread count
+(``NUMBA_NUM_THREADS``, default the cores), which the rollout's ``prange`` uses too.  Results do
+not depend on it: every task computes the same numbers alone or beside others.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def workers() -> int:
+    import numba
+
+    return max(1, int(numba.get_num_threads()))
+
+
+def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    """``[fn(x) for x in items]``, on up to :func:`workers` threads, in order; the first error raised."""
+    items = list(items)
+    n = min(workers(), len(items))
+    if n <= 1:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(n) as ex:
+        return list(ex.map(fn, items))

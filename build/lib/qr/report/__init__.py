@@ -1,0 +1,1 @@
+"""Tables and figures for results/ (atomic writes, Markdown twins of every table)."""

@@ -1,0 +1,255 @@
+"""Multi-step open-loop rollout: the field's yardstick (docs/spec/evaluate.md).
+
+From the estimated state at every start sample ``i`` (position and velocity of the
+tracked point in the world frame, attitude, body rate), a model driven by the
+measured rotor speeds of samples ``i … i+H−1`` (zero-order hold, one RK4 step per
+sample over the log's own step, quaternion renormalised) predicts samples ``i+1 … i+H``.  For each ``h``
+the errors against the truth (measured position and attitude, estimated velocity
+and rate) are summed over windows; a window adds to ``h`` only where the truth at
+``i+h`` is present.  Sums and counts are returned, so flights pool by adding.
+
+Models: a vehicle with its effects, integrated by the TRUE plant's rigid-body
+kernel (``qr.sim.plant``: one meaning per effect everywhere), and two references on
+the same windows: ``hold`` (the state held) and ``rate_frozen`` (the nominal rotor
+thrust along body z, no drag, the body rate held at ω_i: the public
+nanodrone-sysid-benchmark's physics baseline).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numba as nb
+import numpy as np
+import pandas as pd
+
+from .allowed import check_fields, check_known, setting
+from .frames_compiled import quat_angle
+from .sim.plant import N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
+from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
+
+DEFAULTS_FILE = "src/qr/rollout.py"
+QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
+MODEL, HOLD, RATE_FROZEN = 0, 1, 2
+
+
+STRIDE = 32
+CHUNKS = 16  # fixed, not the thread count: the summation order (and so every digit) is the same anywhere
+
+
+@nb.njit(cache=True, parallel=True)
+def _rollout(t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
+    """Accumulate error sums (H, 4) and counts (H, 4) over every allowed start (chunks in parallel)."""
+    part_s = np.zeros((CHUNKS, H, 4))
+    part_c = np.zeros((CHUNKS, H, 4), dtype=np.int64)
+    for c in nb.prange(CHUNKS):
+        _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, part_s[c], part_c[c])
+    for c in range(CHUNKS):
+        sums += part_s[c]
+        counts += part_c[c]
+
+
+@nb.njit(cache=True)
+def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
+    """Chunk ``c``: every CHUNKS-th run of STRIDE starts (the scored starts are often one end of a
+    flight, its held-out part: interleaving keeps the threads equally busy)."""
+    n = X0.shape[0]
+    r = P[P_MARKER:P_MARKER + 3].copy()
+    zero = np.zeros(3)
+    x, xn, xs, k = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
+    for i in range(n - 1):
+        if (i // STRIDE) % CHUNKS != c or not start_ok[i]:
+            continue
+        x[:] = X0[i]
+        cg_from_tracked(x, r)
+        moving = mode != HOLD
+        for h in range(1, H + 1):
+            j = i + h
+            if j >= n:
+                break
+            if moving:
+                u = U[j - 1]
+                rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], mode == RATE_FROZEN, zero, k, xs, xn)
+                if np.all(np.isfinite(xn)) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
+                    x, xn = xn, x
+                else:  # diverged: the last sane state stands for the rest (its errors still count)
+                    moving = False
+            px, py, pz, vx, vy, vz = tracked_pv(x, r)
+            if np.isfinite(tp[j, 0]):
+                sums[h - 1, 0] += math.sqrt((px - tp[j, 0]) ** 2 + (py - tp[j, 1]) ** 2 + (pz - tp[j, 2]) ** 2)
+                counts[h - 1, 0] += 1
+            if np.isfinite(tv[j, 0]):
+                sums[h - 1, 1] += math.sqrt((vx - tv[j, 0]) ** 2 + (vy - tv[j, 1]) ** 2 + (vz - tv[j, 2]) ** 2)
+                counts[h - 1, 1] += 1
+            if np.isfinite(tq[j, 0]):
+                sums[h - 1, 2] += quat_angle(tq[j], x[6:10])
+                counts[h - 1, 2] += 1
+            if np.isfinite(tw[j, 0]):
+                sums[h - 1, 3] += math.sqrt((x[10] - tw[j, 0]) ** 2 + (x[11] - tw[j, 1]) ** 2
+                                            + (x[12] - tw[j, 2]) ** 2)
+                counts[h - 1, 3] += 1
+
+
+def _delayed(t: np.ndarray, U: np.ndarray, d: float) -> np.ndarray:
+    if d <= 0:
+        return U
+    return np.column_stack([np.interp(t - d, t, U[:, k]) for k in range(U.shape[1])])
+
+
+def _held(U: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Missing rotor speeds held at the last present value; the length of the gap each row sits in."""
+    miss = ~np.isfinite(U).all(axis=1)
+    idx = np.where(~miss, np.arange(len(U)), 0)
+    np.maximum.accumulate(idx, out=idx)
+    held = U[idx]
+    run = np.zeros(len(U), dtype=np.int64)
+    c = 0
+    for i in range(len(U)):
+        c = c + 1 if miss[i] else 0
+        run[i] = c
+    return held, run
+
+
+def starts_allowed(run: np.ndarray, H: int, max_input_gap: int, keep: np.ndarray | None = None) -> np.ndarray:
+    """Starts whose inputs i … i+H−1 have no gap longer than ``max_input_gap`` samples (``keep``: also)."""
+    n = len(run)
+    bad = (run > max_input_gap).astype(np.int64)
+    c = np.concatenate([[0], np.cumsum(bad)])
+    hi = np.minimum(np.arange(n) + H, n)
+    ok = (c[hi] - c[np.arange(n)]) == 0
+    return ok if keep is None else ok & keep
+
+
+def score(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_gap: int,
+          models: dict, keep: np.ndarray | None = None) -> dict:
+    """Sums and counts per model (``{name: (sums (H, 4), counts (H, 4))}``) on one gap-free piece.
+
+    Each RK4 step spans the log's own step between two samples (a jittery log is not resampled: the
+    truth stays as measured, and on a uniform log this is the spec's fixed ``dt``).
+
+    ``states``: the filtered estimate (start states, velocity and rate truth); ``measured``: the log on
+    the same time stamps (position and attitude truth, rotor speeds).  ``models``: name → ``"hold"``,
+    ``("rate_frozen", vehicle)`` or ``(vehicle, effects)``.  ``keep``: the starts to score (all).
+    """
+    t = states["t"].to_numpy(float)
+    X0 = states[POSITION + VELOCITY + QUATERNION + RATE].to_numpy(float)
+    tp = measured[POSITION].to_numpy(float)
+    tq = measured[QUATERNION].to_numpy(float)
+    tq = np.where(np.isfinite(tq).all(axis=1, keepdims=True), tq, np.nan)
+    tp = np.where(np.isfinite(tp).all(axis=1, keepdims=True), tp, np.nan)
+    tv = states[VELOCITY].to_numpy(float)
+    tw = states[RATE].to_numpy(float)
+    U, run = _held(measured[ROTORS].to_numpy(float))
+    ok = starts_allowed(run, horizon, max_input_gap, keep) & np.isfinite(X0).all(axis=1)
+    out = {}
+    for name, spec in models.items():
+        sums, counts = np.zeros((horizon, 4)), np.zeros((horizon, 4), dtype=np.int64)
+        if spec == "hold":
+            mode, P, Ud = HOLD, np.zeros(N_P), U  # nothing is integrated; no marker offset
+        elif spec[0] == "rate_frozen":
+            mode, P, Ud = RATE_FROZEN, true_params(spec[1]), U
+        else:
+            vehicle, effects = spec
+            mode, P = MODEL, true_params(vehicle, effects)
+            Ud = _delayed(t, U, float(P[P_DELAY]))
+        _rollout(t, X0, np.ascontiguousarray(Ud), ok, tp, tq, tv, tw, horizon, P, mode, sums, counts)
+        out[name] = (sums, counts)
+    return out
+
+
+def pool(parts: list[dict]) -> dict:
+    """Add the sums and counts of several pieces, model by model."""
+    out = {}
+    for part in parts:
+        for name, (s, c) in part.items():
+            if name in out:
+                out[name] = (out[name][0] + s, out[name][1] + c)
+            else:
+                out[name] = (s.copy(), c.copy())
+    return out
+
+
+def summary(sums: np.ndarray, counts: np.ndarray) -> dict:
+    """The spec's block per model: for each quantity the MAE per h (null where no window) and SimErr."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mae = sums / counts
+    out = {}
+    for k, q in enumerate(QUANTITIES):
+        m = mae[:, k]
+        out[q] = {"mae": [None if not np.isfinite(x) else float(x) for x in m],
+                  "simerr": float(np.nansum(m)) if np.isfinite(m).any() else None,
+                  "windows": int(counts[0, k])}
+    return out
+
+
+def horizon_metrics(models: dict, H: int, prefix: str = "", ratios: bool = False) -> dict:
+    """MLflow metrics of :func:`summary` blocks: each model's MAE at ``H`` per quantity
+    (``{prefix}{model}.{q}_at_{H}``) and, with ``ratios``, its ratio to ``rate_frozen`` (``..._ratio``)."""
+    out = {}
+    for model, block in models.items():
+        for q in QUANTITIES:
+            x, ref = at(block, H, q), at(models["rate_frozen"], H, q) if "rate_frozen" in models else None
+            if x is not None:
+                out[f"{prefix}{model}.{q}_at_{H}"] = x
+                if ratios and ref:
+                    out[f"{prefix}{model}.{q}_ratio"] = x / ref
+    return out
+
+
+def at(block: dict, h: int, q: str):
+    """MAE of quantity ``q`` at step ``h`` (1-based) from a :func:`summary` block (None if absent)."""
+    m = block[q]["mae"]
+    return m[h - 1] if 0 < h <= len(m) else None
+
+
+# ---- settings (config group `evaluate`), the scored pieces of a segment, the Markdown table ----
+
+@dataclass
+class EvaluateConfig:
+    KEY: ClassVar[str] = "evaluate"
+    horizon: int = setting(50, "integer", ge=1, le=100_000)  # H: steps of the log's sample period
+    # windows whose rotor speeds miss more than this many samples in a row are skipped
+    max_input_gap: int = setting(2, "integer", ge=0)
+    trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (as qr diagnose's)
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "EvaluateConfig":
+        d = {k: v for k, v in dict(d or {}).items() if k != "filter"}  # (filter: read by _compose)
+        check_known(cls.KEY, d, cls, DEFAULTS_FILE)
+        return cls(**d)
+
+
+@dataclass
+class EvaluateNode(EvaluateConfig):
+    """The config group ``evaluate`` (structured; ``conf/evaluate/default.yaml`` selects it)."""
+
+    filter: str = "auto"  # the estimate the windows start from (as qr diagnose's)
+
+
+def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:
+    """A segment's estimate, its measured rows on the same stamps, and the starts to score (trimmed)."""
+    from .flight import on_stamps
+
+    t = states["t"].to_numpy(float)
+    meas = on_stamps(rows, t)
+    keep = (t >= t[0] + trim_s) & (t <= t[-1] - trim_s)
+    return states, meas, keep
+
+
+def table(models: dict, H: int) -> list[str]:
+    """Markdown rows: each model's MAE at h = 1, 10, H and SimErr, per quantity."""
+    hs = [h for h in (1, 10, H) if h <= H]
+    hs = sorted(set(hs))
+    head = ["model"] + [f"{q}@{h}" for q in QUANTITIES for h in hs] + [f"SimErr {q}" for q in QUANTITIES]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" + "---:|" * (len(head) - 1)]
+    fmt = lambda x: "–" if x is None else f"{x:.4g}"  # noqa: E731
+    for name, block in models.items():
+        cells = [fmt(at(block, h, q)) for q in QUANTITIES for h in hs]
+        cells += [fmt(block[q]["simerr"]) for q in QUANTITIES]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines

@@ -1,0 +1,78 @@
+"""The rotor map: rotor speeds -> thrust and body torques, and its inverse.
+
+One matrix ``B`` (4 x 4) maps squared rotor speeds to ``[T, Γx, Γy, Γz]``::
+
+    F_i = C_T u_i^2
+    T   = Σ F_i
+    Γ   = Σ (y_i F_i, -x_i F_i, yaw_sign_i C_Q u_i^2)
+
+Layout ``plus`` is the thesis eq. (4.3): rotor 1 at (+l, 0), 2 at (0, +l),
+3 at (-l, 0), 4 at (0, -l), yaw signs (-1, +1, -1, +1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+PLUS_YAW_SIGNS = (-1.0, 1.0, -1.0, 1.0)
+
+
+def plus_positions(arm_length: float) -> np.ndarray:
+    l = float(arm_length)
+    return np.array([[l, 0.0], [0.0, l], [-l, 0.0], [0.0, -l]])
+
+
+@dataclass(frozen=True)
+class RotorMap:
+    positions: np.ndarray  # (n_rotors, 2) body x, y of each rotor axis (m)
+    yaw_signs: np.ndarray  # (n_rotors,) sign of each rotor's reaction torque about body z
+    thrust_coeff: float
+    torque_coeff: float
+
+    @classmethod
+    def from_layout(cls, layout, arm_length, thrust_coeff, torque_coeff) -> "RotorMap":
+        if layout == "plus":
+            pos = plus_positions(arm_length)
+            signs = np.array(PLUS_YAW_SIGNS)
+        else:
+            pos = np.array([[float(r["x"]), float(r["y"])] for r in layout])
+            signs = np.array([float(r["yaw_sign"]) for r in layout])
+        return cls(pos, signs, float(thrust_coeff), float(torque_coeff))
+
+    @property
+    def n(self) -> int:
+        return len(self.yaw_signs)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``B`` with ``[T, Γx, Γy, Γz] = B u²`` (eq. 4.3 for layout plus)."""
+        ct, cq = self.thrust_coeff, self.torque_coeff
+        x, y = self.positions[:, 0], self.positions[:, 1]
+        return np.vstack([ct * np.ones(self.n), ct * y, -ct * x, cq * self.yaw_signs])
+
+    def wrench(self, u: np.ndarray) -> np.ndarray:
+        """``[T, Γx, Γy, Γz]`` (N, 4) from rotor speeds (N, n_rotors)."""
+        u = np.asarray(u, dtype=float)
+        return (u * u) @ self.matrix.T
+
+    def thrust_torque(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        w = self.wrench(u)
+        return w[..., 0], w[..., 1:]
+
+    def rotor_wrench_columns(self) -> np.ndarray:
+        """Column i: the wrench ``[T, Γx, Γy, Γz]`` of rotor i per unit ``u_i²`` thrust part only.
+
+        Used by effects that scale individual rotors' thrust (motor imbalance):
+        yaw torque comes from C_Q, not C_T, so its row is zero here.
+        """
+        ct = self.thrust_coeff
+        x, y = self.positions[:, 0], self.positions[:, 1]
+        return np.vstack([ct * np.ones(self.n), ct * y, -ct * x, np.zeros(self.n)])
+
+    def speeds_for(self, wrench: np.ndarray, u_min: float = 0.0, u_max: float = np.inf) -> np.ndarray:
+        """Inverse map: rotor speeds that produce ``[T, Γx, Γy, Γz]``, clipped to limits."""
+        u2 = np.linalg.solve(self.matrix, np.asarray(wrench, dtype=float).T).T
+        u2 = np.clip(u2, u_min**2, u_max**2)
+        return np.sqrt(u2)

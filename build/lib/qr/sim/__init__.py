@@ -1,0 +1,1 @@
+"""Simulation: the rigid-body plant, controllers, trajectories, synthetic flights, the study."""

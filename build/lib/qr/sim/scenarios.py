@@ -1,0 +1,227 @@
+"""Random combinations of catalog effects for the combinations benchmark and its test subset.
+
+Parameters are drawn in stated physical ranges, scaled to the vehicle (mass
+``m``, weight ``mg``, arm ``l``, inertia ``J``, hover rotor speed ``u_h``), with
+magnitudes between a detectable and a plausible size on a 60 s flight with
+realistic noise.  Effects that are the same term in principle are never drawn
+together (``ALIASED``): the spec names one of each such pair, so "the true set"
+would be ambiguous.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..effects import CATALOG
+
+# families of mechanisms: every pair of families appears in the benchmark
+FAMILIES = {
+    "velocity force": ("linear_drag", "quadratic_drag", "rotor_drag"),
+    "constant force": ("wind_force", "body_force_bias"),
+    "thrust and mass": ("thrust_gain", "mass_error", "ground_effect"),
+    "per rotor": ("motor_imbalance",),
+    "torque offset": ("cg_offset", "torque_bias"),
+    "inertia and yaw": ("inertia_error", "yaw_torque_gain"),
+    "aerodynamic torque": ("blade_flapping",),
+    "actuator dynamics": ("actuator_delay",),
+    "kinematics": ("marker_offset",),
+}
+FAMILY_OF = {e: f for f, members in FAMILIES.items() for e in members}
+
+# the same term, or the same to first order, never drawn together: thrust_gain = m/(m+dm) in force and
+# an all-equal motor_imbalance; Ω ≈ const makes rotor drag a linear drag in x/y; with near-equal rotor
+# speeds a motor imbalance's torque is a CG offset's (∝ T); J_z α_z = C_Q-torque makes a C_Q error an
+# inertia error about z
+ALIASED = [{"thrust_gain", "mass_error"}, {"thrust_gain", "motor_imbalance"}, {"mass_error", "motor_imbalance"},
+           {"linear_drag", "rotor_drag"}, {"quadratic_drag", "rotor_drag"}, {"cg_offset", "motor_imbalance"},
+           {"yaw_torque_gain", "inertia_error"}]
+
+
+def _signed(rng, lo, hi, n=1):
+    return rng.choice([-1.0, 1.0], n) * rng.uniform(lo, hi, n)
+
+
+def draw_parameters(name: str, vehicle, rng: np.random.Generator) -> dict:
+    """One effect's parameters in its stated range (the ranges are the code below, in vehicle units).
+
+    Torque disturbances are sized by the steady attitude error they cause under the synthetic
+    flights' attitude loop (``τ / (J ω_n²)``, 1-4 degrees): physical for any airframe size, and
+    flyable without integral action.
+    """
+    from .control import Gains
+
+    m, J = vehicle.mass, vehicle.inertia
+    mg = m * 9.81
+    arm = float(np.max(np.hypot(*vehicle.rotors.positions.T)))
+    u_h = vehicle.hover_speed
+    deg = np.pi / 180
+    tau_1deg = float(J[:2].min()) * Gains().attitude_natural_freq ** 2 * deg  # N m for 1 degree
+    if name == "linear_drag":  # k/m in 0.15 .. 0.6 1/s per axis
+        v = m * rng.uniform(0.15, 0.6, 3)
+    elif name == "quadratic_drag":  # c/m in 0.08 .. 0.4 1/m
+        v = m * rng.uniform(0.08, 0.4, 3)
+    elif name == "rotor_drag":  # k Σu / m in 0.15 .. 0.6 1/s
+        v = m * rng.uniform(0.15, 0.6, 1) / (4 * u_h)
+    elif name in ("wind_force", "body_force_bias"):  # 2 .. 8 % of the weight per axis
+        v = mg * _signed(rng, 0.02, 0.08, 3)
+    elif name == "thrust_gain":  # C_T off by 3 .. 10 %
+        v = 1 + _signed(rng, 0.03, 0.10)
+    elif name == "mass_error":  # 4 .. 12 % of the mass
+        v = m * _signed(rng, 0.04, 0.12)
+    elif name == "ground_effect":  # k / l² in 0.02 .. 0.06 (Cheeseman-Bennett: ~(R/4)² ~ 0.02 l²)
+        v = arm**2 * rng.uniform(0.02, 0.06, 1)
+    elif name == "motor_imbalance":  # each rotor 3 .. 8 % off
+        v = _signed(rng, 0.03, 0.08, 4)
+    elif name == "cg_offset":  # r m g: 1 .. 4 degrees (Hummingbird 2.6 .. 10 mm, Crazyflie 0.1 .. 0.5 mm)
+        v = tau_1deg * _signed(rng, 1, 4, 2) / mg
+    elif name == "torque_bias":  # 1 .. 4 degrees per axis
+        v = tau_1deg * _signed(rng, 1, 4, 3)
+    elif name == "yaw_torque_gain":  # C_Q off by 15 .. 40 %
+        v = 1 + _signed(rng, 0.15, 0.40)
+    elif name == "inertia_error":  # 15 .. 40 % of J per axis, one sign for all (another airframe)
+        v = J * rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.40, 3)
+    elif name == "actuator_delay":  # 15 .. 50 ms
+        v = rng.uniform(0.015, 0.05, 1)
+    elif name == "marker_offset":  # 15 .. 40 % of the arm per axis
+        v = arm * _signed(rng, 0.15, 0.40, 3)
+    elif name == "blade_flapping":  # k at 1 m/s: 1 .. 4 degrees (nose up when flying forward: k > 0)
+        v = tau_1deg * rng.uniform(1, 4, 1)
+    else:  # pragma: no cover - every catalog effect has a range
+        raise KeyError(name)
+    v = np.atleast_1d(v)
+    return {p: float(x) for p, x in zip(CATALOG[name].params, v)}
+
+
+@dataclass
+class Scenario:
+    seed: int
+    effects: list[dict]  # [{name, parameters}]
+    vehicle: str  # conf/vehicle name
+    noise_scale: float  # x the default NoiseConfig stds
+    tilt_max_deg: float
+    v_max: float
+    low_height: float = 0.0  # m, lowest point of the dips towards the floor (0: no dips)
+
+    @property
+    def names(self) -> list[str]:
+        return sorted(e["name"] for e in self.effects)
+
+
+def compatible(names) -> bool:
+    return not any(a <= set(names) for a in ALIASED)
+
+
+def combinations(n: int = 44, seed: int = 0) -> list[Scenario]:
+    """``n`` scenarios: every pair of families once (a third effect added to every third), then singles."""
+    rng = np.random.default_rng(seed)
+    fams = list(FAMILIES)
+    sets = []
+    for fa, fb in itertools.combinations(fams, 2):
+        while True:
+            names = [rng.choice(FAMILIES[fa]), rng.choice(FAMILIES[fb])]
+            if len(sets) % 3 == 2:
+                names.append(rng.choice(sorted(set(CATALOG) - set(names))))
+            if compatible(names):
+                break
+        sets.append([str(x) for x in names])
+    singles = list(CATALOG)
+    rng.shuffle(singles)
+    sets += [[s] for s in singles]
+    out = []
+    for i, names in enumerate(sets[:n]):
+        r = np.random.default_rng([seed, i])
+        vehicle = ["asctec_hummingbird", "crazyflie21_brushless"][i % 2]
+        out.append(Scenario(seed=1000 + i, effects=[], vehicle=vehicle, noise_scale=float(r.uniform(0.5, 2.0)),
+                            tilt_max_deg=float(r.uniform(15, 30)), v_max=float(r.uniform(1.0, 2.5))))
+        out[-1].effects = names  # parameters need the vehicle: drawn by `materialise`
+    return out
+
+
+def materialise(sc: Scenario, vehicle) -> Scenario:
+    """Draw the parameters of a scenario's effects for ``vehicle``."""
+    rng = np.random.default_rng([sc.seed, 7])
+    sc.effects = [{"name": n, "parameters": draw_parameters(n, vehicle, rng)} for n in sc.effects]
+    if "ground_effect" in sc.names:  # dips to 0.7 arm lengths: where ground effect matters for any size
+        sc.low_height = 0.7 * float(np.max(np.hypot(*vehicle.rotors.positions.T)))
+    return sc
+
+
+def noise_of(sc: Scenario):
+    """The scenario's noise: the default's standard deviations times ``noise_scale``."""
+    from .synth import NoiseConfig
+
+    base = NoiseConfig()
+    return NoiseConfig(position_std=base.position_std * sc.noise_scale, attitude_std=base.attitude_std * sc.noise_scale,
+                       rotor_std=base.rotor_std * sc.noise_scale, dropout=base.dropout)
+
+
+def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float = 100.0, overrides=()) -> dict:
+    """Fly scenario ``sc`` (parameters drawn) as a synthetic flight in ``folder``/s, diagnose it into
+    ``folder``/d; the diagnosis document."""
+    from pathlib import Path
+
+    from ..config import vehicle_path
+    from ..stages.diagnose import run_diagnosis
+    from ..vehicle import load_vehicle
+    from .synth import SynthConfig, write_synth
+    from .trajectory import TrajectoryConfig
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    vehicle = load_vehicle(vehicle_path(sc.vehicle))
+    if sc.effects and isinstance(sc.effects[0], str):
+        materialise(sc, vehicle)
+    traj = TrajectoryConfig(v_max=sc.v_max, tilt_max_deg=sc.tilt_max_deg, low_passes=sc.low_height > 0,
+                            low_height=sc.low_height or TrajectoryConfig().low_height)
+    write_synth(folder / "s", vehicle, sc.effects, SynthConfig(duration=duration, rate=rate, seed=sc.seed,
+                                                              noise=noise_of(sc), trajectory=traj))
+    return run_diagnosis([folder / "s" / "flight.csv"], folder / "s" / "vehicle.yaml", folder / "d", list(overrides),
+                         log=lambda m: None, figures=False)
+
+
+def coverage_cases(family: str, n: int, seed: int = 0) -> list[Scenario]:
+    """``n`` single-effect scenarios of ``family`` (its members in turn)."""
+    members = FAMILIES[family]
+    out = []
+    for i in range(n):
+        r = np.random.default_rng([seed, i, list(FAMILIES).index(family)])
+        out.append(Scenario(seed=5000 + 100 * list(FAMILIES).index(family) + i, effects=[members[i % len(members)]],
+                            vehicle=["asctec_hummingbird", "crazyflie21_brushless"][i % 2],
+                            noise_scale=float(r.uniform(0.5, 2.0)), tilt_max_deg=float(r.uniform(15, 30)),
+                            v_max=float(r.uniform(1.0, 2.5))))
+    return out
+
+
+def z_scores(sc: Scenario, folder, duration: float = 60.0) -> list[float]:
+    """(estimate - truth) / s.e. of each parameter of the scenario's single effect, fitted alone."""
+    from pathlib import Path
+
+    name = sc.effects[0] if isinstance(sc.effects[0], str) else sc.effects[0]["name"]
+    doc = diagnose_scenario(sc, Path(folder) / f"c{sc.seed}", duration,
+                            overrides=[f"diagnose.candidates=[{name}]"])
+    truth = sc.effects[0]["parameters"]
+    got = {e["name"]: e for e in doc["effects"]}.get(name)
+    if got is None:  # not named at all: every parameter missed
+        return [float("inf")] * len(truth)
+    return [(got["parameters"][p] - v) / max(got["stderr"][p], 1e-300) for p, v in truth.items()]
+
+
+def up_to_confounding(named: list[dict], truth: list[str]) -> tuple[bool, list[str]]:
+    """Is the named set the true one once the confoundings the diagnosis reports are resolved (the spec:
+    name one of a pair the data cannot tell apart, report the other in ``confounded_with``)?  And the
+    false names: named effects neither true nor confounded with a true one."""
+    truth = set(truth)
+    got, false = set(), []
+    for e in named:
+        if e["name"] in truth:
+            got.add(e["name"])
+            continue
+        swap = [c for c in e.get("confounded_with", []) if c in truth]
+        if swap:
+            got.add(swap[0])
+        else:
+            false.append(e["name"])
+    return got == truth and not false, false

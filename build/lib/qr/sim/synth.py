@@ -1,0 +1,208 @@
+"""Synthetic flights: the nominal-model controller flies the TRUE plant along a random trajectory.
+
+``synthesize`` returns the canonical flight (noisy, with dropouts) and the
+noise-free truth at the log stamps; ``write_synth`` writes ``flight.csv``,
+``vehicle.yaml`` (the NOMINAL vehicle: what the user would believe),
+``truth.json`` (effects, seed, settings) and ``truth.parquet`` (true states).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numba as nb
+import numpy as np
+import pandas as pd
+
+from ..atomic import atomic_dir, write_json
+from ..effects import validate_effect_list
+from ..errors import QrInputError
+from ..flight import POSITION, QUATERNION, ROTORS, write_flight
+from ..frames import quat_multiply
+from ..vehicle import save_vehicle, vehicle_from_dict
+from .control import Gains, control, controller_params
+from .plant import P_DELAY, P_MARKER, P_TAU, history_buffer, hover_state, plant_accels, rk4_step, tracked_point, true_params
+from .trajectory import RandomTrajectory, TrajectoryConfig, random_trajectory, reference
+
+MIN_SIM_RATE = 500.0
+
+
+@dataclass
+class NoiseConfig:
+    position_std: float = 0.0005  # m, mocap position
+    attitude_std: float = 0.003  # rad, mocap attitude (small rotation per axis)
+    rotor_std: float = 0.005  # fraction of the hover rotor speed (RPM sensing: ~0.3 % on the Crazyflie logs)
+    dropout: float = 0.005  # fraction of mocap samples left blank (short bursts)
+    rotor_dropout: float = 0.0  # fraction of rotor-speed samples left blank
+
+
+@dataclass
+class SynthConfig:
+    duration: float = 60.0  # s
+    rate: float = 100.0  # Hz, log rate
+    sim_rate: float = 1000.0  # Hz, integration rate (raised to a multiple of `rate`)
+    seed: int = 0
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    noise_free: bool = False
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    gains: Gains = field(default_factory=Gains)
+
+
+TRUTH_COLUMNS = (["t", "px", "py", "pz", "vx", "vy", "vz", "ax", "ay", "az", "qw", "qx", "qy", "qz",
+                  "wx", "wy", "wz", "alx", "aly", "alz"] + ROTORS + ["ud1", "ud2", "ud3", "ud4"]
+                 + ["ref_px", "ref_py", "ref_pz"])
+
+
+@nb.njit(cache=True)
+def _fly(x0, P, C, traj_args, dt, n_steps, log_every, hist):
+    center, amp, freq, phase, yaw, yaw_rate, dips, dip_width, ramp = traj_args
+    n_log = n_steps // log_every + 1
+    out = np.empty((n_log, 31))
+    x = x0.copy()
+    u0 = x0[13:17].copy()
+    r = P[P_MARKER:P_MARKER + 3].copy()
+    zero = np.zeros(3)
+    j = 0
+    for k in range(n_steps + 1):
+        t = k * dt
+        p_ref, v_ref, a_ref, y_ref, yr_ref = reference(t, center, amp, freq, phase, yaw, yaw_rate,
+                                                       dips, dip_width, ramp)
+        u_cmd, _ = control(x, p_ref, v_ref, a_ref, y_ref, yr_ref, zero, C)
+        if k % log_every == 0:
+            if P[P_DELAY] > 0.0:  # delayed rotor map: the speeds acting now
+                s = k - P[P_DELAY] / dt
+                if s <= 0:
+                    ue = u0.copy()
+                else:
+                    i0 = int(math.floor(s))
+                    fr = s - i0
+                    M = hist.shape[0]
+                    ue = (1 - fr) * hist[i0 % M] + fr * hist[(i0 + 1) % M]
+            else:
+                ue = x[13:17].copy()
+            a, alpha = plant_accels(x, ue, P, zero, zero)
+            pm, vm, am = tracked_point(x, a, alpha, r)
+            out[j, 0] = t
+            out[j, 1:4] = pm
+            out[j, 4:7] = vm
+            out[j, 7:10] = am
+            out[j, 10:14] = x[6:10]
+            out[j, 14:17] = x[10:13]
+            out[j, 17:20] = alpha
+            out[j, 20:24] = x[13:17]
+            out[j, 24:28] = (u_cmd - x[13:17]) / P[P_TAU]
+            out[j, 28:31] = p_ref
+            j += 1
+        if k < n_steps:
+            x = rk4_step(x, u_cmd, P, zero, zero, dt, hist, u0, k)
+    return out[:j]
+
+
+def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
+                   traj: RandomTrajectory | None = None) -> pd.DataFrame:
+    """Noise-free true states of the tracked point at the log stamps."""
+    effects = validate_effect_list(effects)
+    rng = np.random.default_rng(cfg.seed)
+    traj = traj or random_trajectory(rng, cfg.duration, cfg.trajectory)
+    log_every = max(1, math.ceil(max(cfg.sim_rate, MIN_SIM_RATE) / cfg.rate))
+    dt = 1.0 / (cfg.rate * log_every)
+    n_steps = int(round(cfg.duration / dt))
+    P = true_params(vehicle, effects)
+    C = controller_params(vehicle, cfg.gains)
+    p0, _, _, y0, _ = traj.sample(np.array([0.0]))
+    x0 = hover_state(vehicle, p0[0], float(y0[0]))
+    hist = history_buffer(P, dt, x0[13:17])
+    out = _fly(x0, P, C, traj.args(), dt, n_steps, log_every, hist)
+    if not np.all(np.isfinite(out)):
+        t_bad = out[np.flatnonzero(~np.isfinite(out).all(axis=1))[0], 0]
+        raise QrInputError("synthetic flight", f"the closed loop diverged at t = {t_bad:.2f} s",
+                           "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
+    return pd.DataFrame(out, columns=TRUTH_COLUMNS)
+
+
+def add_noise(truth: pd.DataFrame, vehicle, noise: NoiseConfig, rng: np.random.Generator) -> pd.DataFrame:
+    """The canonical flight a motion-capture system and rotor-speed sensors would log."""
+    n = len(truth)
+    df = pd.DataFrame({"t": truth["t"].to_numpy()})
+    df[POSITION] = truth[POSITION].to_numpy() + rng.normal(0.0, noise.position_std, (n, 3))
+    dtheta = rng.normal(0.0, noise.attitude_std, (n, 3))
+    half = np.linalg.norm(dtheta, axis=1, keepdims=True) / 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where(half > 0, dtheta / (2 * half), 0.0)
+    dq = np.hstack([np.cos(half), axis * np.sin(half)])
+    df[QUATERNION] = quat_multiply(truth[QUATERNION].to_numpy(), dq)
+    df[ROTORS] = np.abs(truth[ROTORS].to_numpy() + rng.normal(0.0, noise.rotor_std * vehicle.hover_speed, (n, 4)))
+    _blank(df, POSITION + QUATERNION, noise.dropout, rng)
+    _blank(df, ROTORS, noise.rotor_dropout, rng)
+    return df
+
+
+def _blank(df, cols, fraction, rng):
+    """Blank ``fraction`` of the rows in bursts of 1-5 samples (radio or tracking loss)."""
+    n = len(df)
+    # bursts start in [1, n - 7] and reach row n - 3 at most: the first and last rows are kept, so
+    # at most n - 3 rows can be blanked (more would never be reached)
+    target = min(int(round(fraction * n)), n - 3) if n >= 8 else 0  # (a shorter flight has no room for bursts)
+    mask = np.zeros(n, dtype=bool)
+    blank = 0
+    while blank < target:
+        start = int(rng.integers(1, n - 6))
+        end = start + int(rng.integers(1, 6))
+        blank += int(np.count_nonzero(~mask[start:end]))
+        mask[start:end] = True
+    df.loc[mask, cols] = np.nan
+
+
+def synthesize(vehicle, effects: list[dict], cfg: SynthConfig):
+    """``(flight, truth)`` for ``vehicle`` with the catalog ``effects`` hidden in the plant."""
+    truth = simulate_truth(vehicle, effects, cfg)
+    if cfg.noise_free:
+        flight = truth[["t", *POSITION, *QUATERNION, *ROTORS]].copy()
+    else:
+        rng = np.random.default_rng([cfg.seed, 1])
+        flight = add_noise(truth, vehicle, cfg.noise, rng)
+    return flight, truth
+
+
+OUTPUTS = ("flight.csv", "vehicle.yaml", "truth.json", "truth.parquet")
+
+
+def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: bool = False,
+                inputs=()) -> dict:
+    """Write ``flight.csv``, ``vehicle.yaml`` (nominal), ``truth.json`` and ``truth.parquet``.
+
+    ``outdir`` is checked before the flight is simulated (:func:`qr.outputs.check_out_dir`; ``inputs``:
+    the files it must not hold; ``force``: write beside a folder's other files).
+    """
+    from ..outputs import check_out_dir
+
+    check_out_dir(outdir, inputs=inputs, force=force, expected=OUTPUTS)
+    effects = validate_effect_list(vehicle.effects) + validate_effect_list(effects)
+    true_vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
+    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder: both are the truth
+    nominal = true_vehicle.to_dict()
+    remainder = nominal.pop("torque_remainder", None)
+    with atomic_dir(outdir, force=force, command="qr synth") as tmp:
+        flight, truth = synthesize(true_vehicle, effects, cfg)
+        vehicle = true_vehicle if remainder is None else vehicle_from_dict(nominal)
+        meta = {
+            "schema": "qr.synth/1",
+            "vehicle": vehicle.name,
+            "effects": effects,
+            **({"torque_remainder": remainder} if remainder is not None else {}),
+            "seed": cfg.seed,
+            "duration": cfg.duration,
+            "rate": cfg.rate,
+            "noise_free": cfg.noise_free,
+            "noise": asdict(cfg.noise),
+            "trajectory": asdict(cfg.trajectory),
+            "samples": len(flight),
+        }
+        write_flight(flight, tmp / "flight.csv")
+        save_vehicle(vehicle, tmp / "vehicle.yaml",
+                     header="NOMINAL vehicle of a qr synth flight: the hidden effects are in truth.json")
+        write_json(tmp / "truth.json", meta)
+        truth.to_parquet(tmp / "truth.parquet", index=False)
+    return meta
+

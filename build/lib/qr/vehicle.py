@@ -1,0 +1,275 @@
+"""Vehicle files: load, validate, save.  The one home of the vehicle parameters.
+
+The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project adds
+(never required of outside files): ``ground_z`` (m, height of the floor in the
+log's world frame), ``rotor_speed_min`` / ``rotor_speed_max`` and
+``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
+``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
+and ``extends`` (a path, relative to this file, of a vehicle whose keys this one
+overrides).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .allowed import is_number
+from .atomic import plain, write_text
+from .errors import QrInputError, warn
+from .rotors import RotorMap
+
+REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
+SPEED_UNITS = ("rpm", "rad_s")
+OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
+KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
+                         "description", "source", "torque_remainder"} | set(OPTIONAL_DEFAULTS)
+
+
+@dataclass
+class Vehicle:
+    name: str
+    mass: float
+    inertia: np.ndarray  # (3,) principal Jxx, Jyy, Jzz (kg m^2)
+    rotors: RotorMap
+    rotor_speed_unit: str
+    raw: dict = field(repr=False)  # the validated mapping (for saving / extending)
+
+    @property
+    def J(self) -> np.ndarray:
+        return np.diag(self.inertia)
+
+    @property
+    def thrust_coeff(self) -> float:
+        return self.rotors.thrust_coeff
+
+    @property
+    def torque_coeff(self) -> float:
+        return self.rotors.torque_coeff
+
+    @property
+    def ground_z(self) -> float:
+        return float(self.raw.get("ground_z", OPTIONAL_DEFAULTS["ground_z"]))
+
+    @property
+    def motor_time_constant(self) -> float:
+        return float(self.raw.get("motor_time_constant", OPTIONAL_DEFAULTS["motor_time_constant"]))
+
+    @property
+    def hover_speed(self) -> float:
+        """Rotor speed (vehicle unit) at which four equal rotors carry m g."""
+        return math.sqrt(self.mass * 9.81 / (self.rotors.n * self.thrust_coeff))
+
+    @property
+    def rotor_speed_min(self) -> float:
+        return float(self.raw.get("rotor_speed_min", 0.0))
+
+    @property
+    def rotor_speed_max(self) -> float:
+        # Default: thrust-to-weight 2.5, a typical small multirotor.
+        return float(self.raw.get("rotor_speed_max", self.hover_speed * math.sqrt(2.5)))
+
+    @property
+    def effects(self) -> list[dict]:
+        return list(self.raw.get("effects") or [])
+
+    def with_changes(self, **changes) -> "Vehicle":
+        raw = copy.deepcopy(self.raw)
+        raw.update(changes)
+        return vehicle_from_dict(raw)
+
+    def to_dict(self) -> dict:
+        return copy.deepcopy(self.raw)
+
+
+def _number(path, raw, key, positive=True, minimum=None):
+    val = raw[key]
+    if not is_number(val):
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a number",
+                           f"give '{key}' as a number in SI units (no quotes)")
+    x = float(val)
+    if not math.isfinite(x) or (positive and x <= 0):
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, not a positive number",
+                           f"set '{key}' to its physical (positive) value")
+    if minimum is not None and x < minimum:
+        raise QrInputError(path, f"vehicle key '{key}' is {val!r}, below {minimum:g}",
+                           f"set '{key}' to its physical value (at least {minimum:g})")
+    return x
+
+
+def _layout_entry(path, i, r):
+    if not isinstance(r, dict) or not {"x", "y", "yaw_sign"} <= set(r):
+        raise QrInputError(path, f"layout rotor {i} is {r!r}",
+                           "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}")
+    for k in ("x", "y", "yaw_sign"):
+        if not is_number(r[k]) or not math.isfinite(r[k]):
+            raise QrInputError(path, f"layout rotor {i} has {k}: {r[k]!r}, not a number",
+                               "give each rotor as {x: m, y: m, yaw_sign: +1 or -1}, numbers without quotes")
+    if float(r["yaw_sign"]) not in (-1.0, 1.0):
+        raise QrInputError(path, f"layout rotor {i} has yaw_sign {r['yaw_sign']!r}", "yaw_sign is +1 or -1")
+
+
+def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
+    if not isinstance(raw, dict):
+        raise QrInputError(path, "vehicle file is not a YAML mapping",
+                           "write 'key: value' lines as in docs/spec/flight-log.md")
+    missing = [k for k in REQUIRED if k not in raw]
+    if raw.get("layout") == "plus" and "arm_length" not in raw:
+        missing.append("arm_length")
+    if missing:
+        import difflib
+        hints = []
+        for k in missing:
+            close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
+            hints.append(f"'{k}'" + (f" (found {close[0]!r})" if close else ""))
+        raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
+                           "add them as in docs/spec/flight-log.md")
+    raw = dict(raw)
+    mass = _number(path, raw, "mass")
+    ct = _number(path, raw, "thrust_coeff")
+    cq = _number(path, raw, "torque_coeff")
+    arm = _number(path, raw, "arm_length") if "arm_length" in raw else None
+    inertia = raw["inertia"]
+    if not (isinstance(inertia, (list, tuple)) and len(inertia) == 3):
+        raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
+                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
+    if not all(is_number(x) for x in inertia):
+        raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
+                           "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
+    J = np.array([float(x) for x in inertia])
+    if not np.all(np.isfinite(J)) or np.any(J <= 0):
+        raise QrInputError(path, f"vehicle inertia {[float(x) for x in J]} has a non-positive entry",
+                           "give positive principal inertias in kg m^2")
+    for i in range(3):
+        a, b, c = J[i], J[(i + 1) % 3], J[(i + 2) % 3]
+        if a > b + c:
+            names = ["Jxx", "Jyy", "Jzz"]
+            warn(path, f"inertia {[float(x) for x in J]} breaks the triangle inequality "
+                       f"({names[i]} > {names[(i + 1) % 3]} + {names[(i + 2) % 3]}): no rigid body has it",
+                 "use measured principal inertias; for a symmetric quadrotor Jzz is at most Jxx + Jyy "
+                 "(the thesis's Table 4.1 value is such an error)")
+            break
+    unit = raw["rotor_speed_unit"]
+    if not isinstance(unit, str) or unit not in SPEED_UNITS:
+        raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
+                           f"use one of {', '.join(SPEED_UNITS)}")
+    layout = raw["layout"]
+    if layout != "plus":
+        if not isinstance(layout, list) or len(layout) != 4:
+            raise QrInputError(path, "layout is neither 'plus' nor a list of four rotors",
+                               "write layout: plus, or four entries {x, y, yaw_sign}")
+        for i, r in enumerate(layout, 1):
+            _layout_entry(path, i, r)
+    rotors = RotorMap.from_layout(layout, arm, ct, cq)
+    if not np.all(np.isfinite(rotors.matrix)):
+        raise QrInputError(path, "thrust_coeff, torque_coeff and the rotor positions overflow the rotor map",
+                           "give the coefficients and positions in SI units (N per unit^2, m)")
+    if abs(np.linalg.det(rotors.matrix)) < 1e-300 or np.linalg.matrix_rank(rotors.matrix) < 4:
+        raise QrInputError(path, "layout gives a rotor map that cannot control thrust, roll, pitch and yaw",
+                           "check rotor positions and yaw signs (two of each sign, not collinear)")
+    if "rotor_speed_max" in raw:
+        _number(path, raw, "rotor_speed_max")
+    for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
+        if k in raw:
+            _number(path, raw, k, positive=k == "motor_time_constant", minimum=0 if k == "rotor_speed_min" else None)
+    unknown = sorted(set(raw) - KNOWN)
+    if unknown:
+        warn(path, f"vehicle file has unknown key(s) {unknown} (ignored)", "remove them or check their spelling")
+    vehicle = Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
+    if raw.get("effects") is not None:
+        from .effects import validate_effect_list
+        # all parameters given, numbers, and within what this vehicle can physically have
+        raw["effects"] = validate_effect_list(raw["effects"], path, vehicle)
+    if raw.get("torque_remainder") is not None:
+        from .torque_remainder import validate
+
+        raw["torque_remainder"] = validate(raw["torque_remainder"], path)
+    return vehicle
+
+
+class _Loader(yaml.SafeLoader):
+    """Safe YAML with YAML 1.2 floats: PyYAML reads ``thrust_coeff: 1e-8`` (no dot) as the string '1e-8'."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
+def _read_yaml(path: Path, chain: tuple = ()) -> dict:
+    """The file's mapping, with ``extends:`` resolved (``chain``: the files that extend this one)."""
+    if not path.exists():
+        raise QrInputError(path, "vehicle file does not exist", "check the path, or name a shipped vehicle (conf/vehicle/: asctec_hummingbird, ...)")
+    if path.is_dir():
+        raise QrInputError(path, "is a folder, not a vehicle file",
+                           "give the vehicle's YAML file (e.g. conf/vehicle/NAME.yaml)")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise QrInputError(path, f"vehicle file cannot be read ({e.strerror})", "check its permissions") from None
+    try:
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[:e.start].count(b"\n") + 1
+        raise QrInputError(path, f"vehicle file is not UTF-8 text (byte 0x{data[e.start]:02x} at line {line})",
+                           "save it as UTF-8 (or keep it ASCII)") from None
+    try:
+        raw = yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as e:
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
+        where = f" at line {line + 1}" if line is not None else ""
+        raise QrInputError(path, f"vehicle file is not valid YAML{where}",
+                           "fix the syntax (key: value, lists in [ ] or '- ' lines)") from None
+    except RecursionError:  # anchors nested thousands deep
+        raise QrInputError(path, "vehicle file nests too deep", "write a flat 'key: value' file") from None
+    if raw is None:
+        raise QrInputError(path, "vehicle file is empty", "write the keys of docs/spec/flight-log.md")
+    if isinstance(raw, dict) and "extends" in raw:
+        base_name = raw["extends"]
+        if not isinstance(base_name, str) or not base_name.strip():
+            raise QrInputError(path, f"'extends: {base_name!r}' is not a file name",
+                               "give the path of the vehicle this one builds on, relative to this file")
+        base_path = (path.parent / base_name).resolve()
+        here = [*chain, path.resolve()]
+        if base_path in here:
+            cycle = " -> ".join(p.name for p in here[here.index(base_path):] + [base_path])
+            raise QrInputError(path, f"'extends: {base_name}' makes a cycle ({cycle})",
+                               "a vehicle file cannot extend itself, directly or through others: remove one 'extends:'")
+        if not base_path.exists():
+            raise QrInputError(path, f"'extends: {base_name}' names {base_path}, which does not exist",
+                               "give the path of the vehicle this one builds on, relative to this file")
+        base = _read_yaml(base_path, tuple(here))
+        if not isinstance(base, dict):
+            raise QrInputError(base_path, "vehicle file is not a YAML mapping",
+                               "write 'key: value' lines as in docs/spec/flight-log.md")
+        base.update({k: v for k, v in raw.items() if k != "extends"})
+        raw = base
+    return raw
+
+
+def load_vehicle(path: str | Path) -> Vehicle:
+    """A vehicle file, or a shipped vehicle by name (``asctec_hummingbird``: ``conf/vehicle/<name>.yaml``,
+    found in an installed qr too)."""
+    from .config import vehicle_path
+
+    named = vehicle_path(str(path))
+    path = named if named.exists() else Path(path)
+    return vehicle_from_dict(_read_yaml(path), path)
+
+
+def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None = None) -> None:
+    raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
+    raw.pop("extends", None)
+    text = yaml.safe_dump(plain(raw), sort_keys=False, default_flow_style=None)
+    if header:
+        text = "".join(f"# {line}\n" for line in header.splitlines()) + text
+    write_text(path, text)
+
+
