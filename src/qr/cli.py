@@ -65,11 +65,13 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
                               "--out flight.csv")
-    s.add_argument("src", help="raw log (canonical CSV or Crazyflie uSD binary)")
+    s.add_argument("src", help="raw log: canonical CSV/Parquet, Crazyflie uSD binary, PX4 ULog, ROS 1 bag or ROS 2 bag folder")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
     s.add_argument("--out", required=True, help="output flight (.csv or .parquet); never an existing file")
     s.add_argument("--force", action="store_true", help="replace an existing --out file")
-    s.add_argument("--format", default="auto", choices=["auto", "csv", "cf-usd", "ulog", "rosbag"])
+    s.add_argument("--format", default="auto", choices=["auto", "csv", "parquet", "cf-usd", "ulog", "rosbag"])
+    s.add_argument("--topic", action="append", metavar="KIND=/NAME",
+                   help="ROS bags: the topic of a kind (pose, rotors, imu) where the bag has several")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -157,7 +159,9 @@ FORCE_HELP = "write into a non-empty folder that qr did not write, beside its fi
 def _cmd_ingest(a):
     from .stages.ingest import ingest_file
 
-    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force)
+    from .ingest.rosbag import parse_topics
+
+    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic))
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
 
 

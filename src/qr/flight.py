@@ -20,6 +20,7 @@ import pandas as pd
 from .atomic import atomic_path
 from .errors import QrInputError, warn
 from .frames import make_continuous
+from .vehicle import SPEED_IN_RPM
 
 POSITION = ["px", "py", "pz"]
 QUATERNION = ["qw", "qx", "qy", "qz"]
@@ -332,7 +333,7 @@ def check_hover_ratio(df, vehicle, path=None):
         unit = vehicle.rotor_speed_unit
         other = "rad_s" if unit == "rpm" else "rpm"
         # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
-        factor = (60 / (2 * np.pi)) ** 2 if unit == "rpm" else (2 * np.pi / 60) ** 2
+        factor = (SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]) ** 2
         hint = ""
         if lo <= ratio * factor <= hi:
             hint = f"the speeds look like {other}, not {unit}:"

@@ -27,6 +27,7 @@ from .rotors import RotorMap
 
 REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
 SPEED_UNITS = ("rpm", "rad_s")
+SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
                          "description", "source", "torque_remainder"} | set(OPTIONAL_DEFAULTS)

@@ -6,8 +6,12 @@ null, huge, NaN or infinite numbers; the text itself cut or re-encoded).  Reprod
 (``derandomize``) and bounded (200 examples per reader, a few seconds).
 """
 
+import functools
 import gzip
+import tempfile
 import warnings
+
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -197,21 +201,46 @@ def work(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
 
 
-# --- PX4 ULog: cut or corrupted binary logs ---
+# --- binary logs (PX4 ULog, ROS 1 bag): cut, and a few bytes overwritten ---
+
+damage = dict(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)),
+                                                     max_size=4))
+
+
+def _damaged(data: bytes, cut: float, flips) -> bytes:
+    data = bytearray(data[:max(int(cut * len(data)), 1)])
+    for where, value in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = value
+    return bytes(data)
+
 
 PX4_SMALL = VEHICLES.parents[1].parent / "shared" / "data" / "px4-ulog-samples" / "sample_log_small.ulg"
 
 
 @pytest.mark.skipif(not PX4_SMALL.exists(), reason="PX4 sample logs not present")
 @FUZZ
-@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=4))
+@given(**damage)
 def test_ulog_reader(tmp_path_factory, cut, flips):
     from qr.ingest import ulog
 
-    data = bytearray(PX4_SMALL.read_bytes())
-    data = data[:max(int(cut * len(data)), 1)]
-    for where, value in flips:
-        data[min(int(where * len(data)), len(data) - 1)] = value
     path = tmp_path_factory.mktemp("ulog") / "log.ulg"
-    path.write_bytes(bytes(data))
+    path.write_bytes(_damaged(PX4_SMALL.read_bytes(), cut, flips))
     _loads_or_one_line(ulog.read, path)
+
+
+@FUZZ
+@given(**damage)
+def test_rosbag_reader(tmp_path_factory, cut, flips):
+    from qr.ingest import rosbag
+
+    path = tmp_path_factory.mktemp("rosbag") / "f.bag"
+    path.write_bytes(_damaged(_ros1_bag(), cut, flips))
+    _loads_or_one_line(rosbag.read, path)
+
+
+@functools.lru_cache(maxsize=1)
+def _ros1_bag() -> bytes:
+    from rosbag_writer import write_bag
+
+    with tempfile.TemporaryDirectory() as d:
+        return write_bag(small_flight(60, seed=3), Path(d) / "f.bag", "ros1").read_bytes()

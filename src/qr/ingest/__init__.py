@@ -15,43 +15,60 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..flight import validate_flight
-from . import cf_usd, csv, future, ulog
+from ..vehicle import SPEED_IN_RPM
+from . import cf_usd, csv, rosbag, ulog
 
 ADAPTERS = {
     "csv": csv.read,
+    "parquet": csv.read,  # read by content: CSV or Parquet
     "cf-usd": cf_usd.read,
     "ulog": ulog.read,
-    "rosbag": future.rosbag,
+    "rosbag": rosbag.read,
 }
 
 
 def detect_format(path: Path) -> str:
+    if path.is_dir():
+        return "rosbag" if (path / "metadata.yaml").exists() else "folder"
     with open(path, "rb") as f:
         head = f.read(16)
     if head[:1] == cf_usd.MAGIC:
         return "cf-usd"
     if head.startswith(b"ULog"):
         return "ulog"
-    if head.startswith(b"#ROSBAG") or path.suffix in (".bag", ".mcap", ".db3"):
+    if head.startswith(b"#ROSBAG"):
         return "rosbag"
+    if head.startswith(b"\x89MCAP") or head.startswith(b"SQLite format 3"):
+        return "rosbag-file"
     return "csv"
 
 
-def read_log(src: str | Path, vehicle, fmt: str = "auto") -> pd.DataFrame:
+def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = None) -> pd.DataFrame:
     """Read ``src`` in ``fmt`` (or detect it) and validate it against ``vehicle`` (the stage that writes
     it is :mod:`qr.stages.ingest`)."""
     src = Path(src)
     if not src.exists():
         raise QrInputError(src, "log file does not exist", "check the path")
-    if src.is_dir():
-        raise QrInputError(src, "is a folder, not a log file", "give the log file itself (e.g. FOLDER/log00)")
-    if src.stat().st_size == 0:
+    kind = detect_format(src)
+    if kind == "folder":
+        raise QrInputError(src, "is a folder, not a log file (nor a ROS 2 bag: no metadata.yaml)",
+                           "give the log file itself (e.g. FOLDER/log00), or a ROS 2 bag's folder")
+    if kind == "rosbag-file":
+        raise QrInputError(src, "is one storage file of a ROS 2 bag (.mcap or .db3)",
+                           "give the bag's folder, the one holding metadata.yaml")
+    if not src.is_dir() and src.stat().st_size == 0:
         raise QrInputError(src, "log file is empty", "point at a complete log (a failed recording is 0 bytes)")
     if fmt == "auto":
-        fmt = detect_format(src)
+        fmt = kind
     if fmt not in ADAPTERS:
         raise QrInputError(src, f"unknown format '{fmt}'", f"use one of auto, {', '.join(ADAPTERS)}")
-    df = ADAPTERS[fmt](src)
+    if topics and fmt != "rosbag":
+        raise QrInputError(src, f"--topic is for ROS bags, and this log is {fmt}", "leave --topic out")
+    df = ADAPTERS[fmt](src, topics) if fmt == "rosbag" else ADAPTERS[fmt](src)
+    unit = df.attrs.get("rotor_unit")
+    if unit and vehicle is not None and unit != vehicle.rotor_speed_unit:  # rotor speeds in the vehicle's unit
+        for c in ("u1", "u2", "u3", "u4"):
+            df[c] = df[c] * SPEED_IN_RPM[unit] / SPEED_IN_RPM[vehicle.rotor_speed_unit]
     if df.attrs.get("rotor_input") == "command":
         raise QrInputError(src, f"the log has motor commands ({df.attrs['sources']['rotors']}), not measured "
                                 "rotor speeds, and command -> thrust maps (rotor_input: command) are not "

@@ -17,16 +17,17 @@ from ..ingest import read_log
 from ..ingest.summary import flight_summary
 
 
-def ingest(src, vehicle, out, fmt: str = "auto") -> pd.DataFrame:
+def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None) -> pd.DataFrame:
     """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically."""
     from ..flight import write_flight
 
-    df = read_log(src, vehicle, fmt)
+    df = read_log(src, vehicle, fmt, topics)
     write_flight(df, out)
     return df
 
 
-def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False) -> pd.DataFrame:
+def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None
+                ) -> pd.DataFrame:
     """``qr ingest``: ``out`` checked (qr never replaces a file it did not write) before any work."""
     from ..outputs import check_out_file
     from ..vehicle import load_vehicle
@@ -35,7 +36,7 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False) 
     if Path(out).suffix not in (".csv", ".parquet"):
         raise QrInputError(out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
                            "*.parquet")
-    return ingest(src, load_vehicle(vehicle_file), out, fmt)
+    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics)
 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:
