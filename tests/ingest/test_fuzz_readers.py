@@ -10,7 +10,6 @@ import functools
 import gzip
 import tempfile
 import warnings
-
 from pathlib import Path
 
 import numpy as np

@@ -3,12 +3,29 @@ import os
 from pathlib import Path
 
 import yaml
+from snakemake.exceptions import WorkflowError
 from snakemake.utils import validate
 
 
 configfile: "conf/workflow.yaml"
 
 
+def _under(base: dict, top: dict) -> dict:
+    """``top`` merged over ``base``, dict by dict (a list or value in ``top`` replaces ``base``'s)."""
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _under(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+DATA_FILE = Path(config["data"])
+if not DATA_FILE.is_file():
+    raise WorkflowError(f"{DATA_FILE}: data set file does not exist; fix: --config data=conf/data/<name>.yaml "
+                        "(see docs/workflow.md, 'Your own data set')")
+DATA = yaml.safe_load(DATA_FILE.read_text())
+validate(DATA, "../schemas/data.schema.yaml")
+# the data set's own needs of the workflow (its chain, figure flight, experiments) under the workflow config
+config.update(_under(DATA.get("workflow") or {}, dict(config)))
 validate(config, "../schemas/config.schema.yaml")
 
 # After a killed run (SIGKILL, power loss): drop orphaned write-then-rename temporaries, each only if
@@ -18,9 +35,13 @@ from qr.procs import remove_orphan_temporaries
 
 remove_orphan_temporaries("results")
 
-DATA = yaml.safe_load(open(config["data"]))
-DATA_ROOT = Path(os.environ.get("QR_DATA", DATA["root"]))
-SETS = {name: dict(DATA["sets"][name]) for name in config["sets"]}
+_env = DATA.get("root_env")
+DATA_ROOT = Path(os.environ[_env] if _env and os.environ.get(_env) else DATA["root"])
+_unknown = [n for n in config.get("sets") or [] if n not in DATA["sets"]]
+if _unknown:
+    raise WorkflowError(f"{DATA_FILE}: no set {', '.join(_unknown)} (it has {', '.join(DATA['sets'])}); fix: "
+                        "--config sets=[...] with the data set's names, or leave `sets` out to run them all")
+SETS = {name: dict(DATA["sets"][name]) for name in (config.get("sets") or DATA["sets"])}
 if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the first N flights of each set
     for _s in SETS.values():
         _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
@@ -28,11 +49,15 @@ if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the 
 
 def raw_log(wildcards):
     s = SETS[wildcards.set]
-    return str(DATA_ROOT / s["dir"] / wildcards.flight)
+    return str(DATA_ROOT / s.get("dir", "") / (wildcards.flight + s.get("suffix", "")))
 
 
 def vehicle_file(set_name):
-    return f"conf/vehicle/{SETS[set_name]['vehicle']}.yaml"
+    """A shipped vehicle by name (conf/vehicle/), or a vehicle file's path (relative to the data set file)."""
+    v = str(SETS[set_name]["vehicle"])
+    if v.endswith((".yaml", ".yml")):
+        return str(DATA_FILE.parent / v) if not Path(v).is_absolute() else v
+    return f"conf/vehicle/{v}.yaml"
 
 
 def flights_of(set_name, pattern):
@@ -40,8 +65,8 @@ def flights_of(set_name, pattern):
 
 
 DIAG = config.get("diagnose", {})
-DIAG_FIRST = DIAG.get("first", "brushless")
-DIAG_CARRY = DIAG.get("carry_to", "payload")
+DIAG_FIRST = DIAG.get("first")  # the chain (a set diagnosed first, its model carried to another): optional
+DIAG_CARRY = DIAG.get("carry_to")
 
 
 def diagnosis_overrides(set_name, each=False, extra=(), extra_overrides=()):
@@ -70,7 +95,8 @@ def check_sets():
     return {f"{DIAG_CHECK['set']} (check)": f"results/diagnosis/{DIAG_CHECK['set']}/check"} if DIAG_CHECK else {}
 
 
-LEARNED_VEHICLE = SETS[DIAG_FIRST]["vehicle"] if DIAG_FIRST in SETS else "crazyflie21_brushless"
+MODEL_SET = DIAG_FIRST if DIAG_FIRST in SETS else next(iter(SETS))  # whose models the simulation study flies
+LEARNED_VEHICLE = vehicle_file(MODEL_SET)
 
 
 def stage_sources(wildcards, input):

@@ -4,7 +4,8 @@
 # The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`.
 
 FILTER = config.get("filter", {})
-FIGURE_SET, FIGURE_FLIGHT = FILTER.get("figure_flight", "brushless/eckart00").split("/")
+_first = next(iter(SETS))  # default: the first flight of the first set
+FIGURE_SET, FIGURE_FLIGHT = FILTER.get("figure_flight", f"{_first}/{SETS[_first]['flights'][0]}").split("/")
 FILTER_FIGURES = ["position", "velocity", "acceleration", "quaternion", "angular_velocity",
                   "angular_acceleration", "rotors"]
 

@@ -1,7 +1,7 @@
 # Learning the residual (thesis Chapters 3-4): filtered flights -> learning table -> named Hydra sweeps
 # (MLflow parent + child runs) -> the thesis's Tables 3.1, 3.2, 4.2, 4.3 with our numbers.
 
-LEARN_SET = next(iter(SETS))  # the first configured set (brushless by default)
+LEARN_SET = MODEL_SET  # the set whose models the simulation flies (the chain's first; else the first set)
 LEARN_SWEEPS = ["table_4_2", "table_4_3", "gpr_kernels"]
 LEARN_TABLES = ["table_3_1", "table_3_2", "table_4_2", "table_4_3", "gpr_kernels"]
 # Extra Hydra overrides (conf/workflow.yaml, key `learn`): `overrides` for every sweep, `sweeps.<name>` for one

@@ -13,7 +13,7 @@ rule simulate:
         sim=f"conf/simulate/{SIM_CONFIG}.yaml",
         vehicle="conf/vehicle/asctec_hummingbird.yaml",
         learned=rules.learn_best.output.force,
-        diagnosis=expand(rules.diagnose_set.output[0], set=DIAG_FIRST)[0],
+        diagnosis=expand(rules.diagnose_set.output[0], set=MODEL_SET)[0],
     output:
         table="results/simulation/tracking.csv",
         markdown="results/simulation/tracking.md",
