@@ -72,6 +72,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--format", default="auto", choices=["auto", "csv", "parquet", "cf-usd", "ulog", "rosbag"])
     s.add_argument("--topic", action="append", metavar="KIND=/NAME",
                    help="ROS bags: the topic of a kind (pose, rotors, imu) where the bag has several")
+    s.add_argument("--align", action="store_true",
+                   help="move the gyro by its estimated time offset to the motion capture (always estimated and "
+                        "printed where the log has a gyro)")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -161,8 +164,11 @@ def _cmd_ingest(a):
 
     from .ingest.rosbag import parse_topics
 
-    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic))
+    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
+    for kind, o in df.attrs["time_offsets"].items():
+        print(f"  {kind} stamped {1000 * o['offset_s']:+.1f} ms late against the motion capture ({o['against']}: "
+              f"correlation {o['correlation']:.2f}){'; moved' if a.align else ''}")
 
 
 def _check_synth_arguments(a):

@@ -17,17 +17,25 @@ from ..ingest import read_log
 from ..ingest.summary import flight_summary
 
 
-def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None) -> pd.DataFrame:
-    """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically."""
+def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False) -> pd.DataFrame:
+    """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically.
+
+    The gyro's time offset against the motion capture is estimated (:mod:`qr.ingest.align`,
+    ``attrs["time_offsets"]``) and, with ``align``, applied."""
     from ..flight import write_flight
+    from ..ingest import align as align_mod
 
     df = read_log(src, vehicle, fmt, topics)
+    found = align_mod.offsets(df)
+    if align:
+        df = align_mod.apply(df, found)
+    df.attrs["time_offsets"] = found
     write_flight(df, out)
     return df
 
 
-def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None
-                ) -> pd.DataFrame:
+def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None,
+                align: bool = False) -> pd.DataFrame:
     """``qr ingest``: ``out`` checked (qr never replaces a file it did not write) before any work."""
     from ..outputs import check_out_file
     from ..vehicle import load_vehicle
@@ -36,7 +44,7 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, 
     if Path(out).suffix not in (".csv", ".parquet"):
         raise QrInputError(out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
                            "*.parquet")
-    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics)
+    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align)
 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:
