@@ -1,8 +1,0 @@
-"""The diagnosis library: what the nominal model gets wrong, the cause named, the model extended.
-
-``core`` (prepare the labels, identify, select, bootstrap), ``crossfit`` (the estimates it needs:
-full and even/odd halves, matched rotor signals), ``matched``, ``noise``, ``replay``, ``slow_torque``,
-``remainder``, ``accelerometer``, ``coefficients`` (vehicle-file checks), ``report`` (report.md,
-figures, diagnosis.json), ``settings`` (DiagnoseConfig).  These take and return arrays and
-dataframes; the stage that reads and writes files is :mod:`qr.stages.diagnose`.
-"""

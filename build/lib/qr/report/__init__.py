@@ -1,1 +1,0 @@
-"""Tables and figures for results/ (atomic writes, Markdown twins of every table)."""

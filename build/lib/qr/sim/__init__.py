@@ -1,1 +1,0 @@
-"""Simulation: the rigid-body plant, controllers, trajectories, synthetic flights, the study."""
