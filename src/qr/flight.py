@@ -337,6 +337,10 @@ def check_hover_ratio(df, vehicle, path=None):
         hint = ""
         if lo <= ratio * factor <= hi:
             hint = f"the speeds look like {other}, not {unit}:"
+        if vehicle.rotor_input == "command" and np.nanmax(np.abs(df[ROTORS].to_numpy(dtype=float))) <= 1.01:
+            raise _error(path, "u1..u4 look like motor commands, not rotor speeds",
+                         "convert them first: qr ingest FLIGHT --vehicle V.yaml --out flight.csv (the vehicle's "
+                         "command_map gives the equivalent rotor speeds)")
         raise _error(path, f"rotor speeds give a median thrust of {ratio:.3g} x m g "
                            f"(plausible: {lo:.2f}-{hi:.0f}); a unit or coefficient error",
                      f"{hint + ' ' if hint else ''}check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "

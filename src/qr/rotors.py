@@ -76,3 +76,31 @@ class RotorMap:
         u2 = np.linalg.solve(self.matrix, np.asarray(wrench, dtype=float).T).T
         u2 = np.clip(u2, u_min**2, u_max**2)
         return np.sqrt(u2)
+
+
+@dataclass(frozen=True)
+class CommandMap:
+    """Normalised motor commands ``c`` in [0, 1] -> rotor thrust: ``F_i = a_i + b_i c + k_i c²`` (N), with
+    ``c`` scaled by ``vbat / v_ref`` where a reference voltage is given and the log has ``vbat``.
+
+    qr works in rotor speeds: a command is read as the *equivalent* speed that gives the same thrust
+    through the vehicle's ``C_T`` (``u = sqrt(F / C_T)``), so the rotor map, the effects and the plant are
+    unchanged, and an error in the command map is a thrust error the diagnosis names (``thrust_gain``,
+    ``motor_imbalance``, ``body_force_bias``). The yaw torque follows as ``C_Q u²``: a motor whose
+    reaction torque is proportional to its thrust.
+    """
+
+    a: np.ndarray  # (n_rotors,)
+    b: np.ndarray
+    k: np.ndarray
+    v_ref: float | None = None
+
+    def thrust(self, c: np.ndarray, vbat: np.ndarray | None = None) -> np.ndarray:
+        c = np.asarray(c, dtype=float)
+        if self.v_ref is not None and vbat is not None:
+            c = c * (np.asarray(vbat, dtype=float)[:, None] / self.v_ref)
+        return self.a + self.b * c + self.k * c * c
+
+    def equivalent_speeds(self, c: np.ndarray, thrust_coeff: float, vbat: np.ndarray | None = None) -> np.ndarray:
+        """Rotor speeds (the vehicle's unit) with the commands' thrust; a non-positive thrust reads as 0."""
+        return np.sqrt(np.maximum(self.thrust(c, vbat), 0.0) / thrust_coeff)

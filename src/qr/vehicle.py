@@ -23,14 +23,16 @@ import yaml
 from .allowed import is_number
 from .atomic import plain, write_text
 from .errors import QrInputError, warn
-from .rotors import RotorMap
+from .rotors import CommandMap, RotorMap
 
 REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
 SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
-                         "description", "source", "torque_remainder"} | set(OPTIONAL_DEFAULTS)
+                         "description", "source", "torque_remainder", "rotor_input", "command_map"} \
+    | set(OPTIONAL_DEFAULTS)
+ROTOR_INPUTS = ("speed", "command")
 
 
 @dataclass
@@ -61,6 +63,20 @@ class Vehicle:
     @property
     def motor_time_constant(self) -> float:
         return float(self.raw.get("motor_time_constant", OPTIONAL_DEFAULTS["motor_time_constant"]))
+
+    @property
+    def rotor_input(self) -> str:
+        """``speed`` (the log's u1..u4 are rotor speeds) or ``command`` (normalised motor commands)."""
+        return str(self.raw.get("rotor_input", "speed"))
+
+    @property
+    def command_map(self) -> CommandMap | None:
+        m = self.raw.get("command_map")
+        if self.rotor_input != "command" or m is None:
+            return None
+        n = self.rotors.n
+        return CommandMap(*(np.broadcast_to(np.asarray(m.get(key, 0.0), dtype=float), (n,)).copy()
+                            for key in ("a", "b", "k")), None if m.get("v_ref") is None else float(m["v_ref"]))
 
     @property
     def hover_speed(self) -> float:
@@ -179,6 +195,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
     for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
         if k in raw:
             _number(path, raw, k, positive=k == "motor_time_constant", minimum=0 if k == "rotor_speed_min" else None)
+    _check_rotor_input(path, raw)
     unknown = sorted(set(raw) - KNOWN)
     if unknown:
         warn(path, f"vehicle file has unknown key(s) {unknown} (ignored)", "remove them or check their spelling")
@@ -192,6 +209,38 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
 
         raw["torque_remainder"] = validate(raw["torque_remainder"], path)
     return vehicle
+
+
+def _check_rotor_input(path, raw: dict) -> None:
+    """``rotor_input: command`` needs a ``command_map`` whose thrust rises with the command."""
+    kind = raw.get("rotor_input", "speed")
+    if kind not in ROTOR_INPUTS:
+        raise QrInputError(path, f"rotor_input is {kind!r}", f"use one of {', '.join(ROTOR_INPUTS)}")
+    m = raw.get("command_map")
+    if kind == "speed":
+        if m is not None:
+            warn(path, "command_map is given but rotor_input is speed (the map is ignored)",
+                 "set rotor_input: command if the log's u1..u4 are motor commands")
+        return
+    fix = "write command_map: {a: N, b: N, k: N} (thrust = a + b c + k c², c in [0, 1]; lists of 4 per rotor)"
+    if not isinstance(m, dict) or not {"b", "k"} <= set(m):
+        raise QrInputError(path, "rotor_input is command but command_map (with b and k) is missing", fix)
+    extra = sorted(set(m) - {"a", "b", "k", "v_ref"})
+    if extra:
+        raise QrInputError(path, f"command_map has unknown key(s) {extra}", fix + ", optional v_ref (V)")
+    coef = {}
+    for key in ("a", "b", "k"):
+        v = m.get(key, 0.0)
+        vals = v if isinstance(v, (list, tuple)) else [v]
+        if len(vals) not in (1, 4) or not all(is_number(x) and math.isfinite(float(x)) for x in vals):
+            raise QrInputError(path, f"command_map.{key} is {v!r}, not a number or four numbers", fix)
+        coef[key] = np.array([float(x) for x in vals])
+    b, k = np.broadcast_arrays(coef["b"], coef["k"])
+    if np.any(b < 0) or np.any(b + 2 * k < 0) or np.any(coef["a"] + b + k <= 0):
+        raise QrInputError(path, f"command_map gives a thrust that does not rise with the command (a={m.get('a', 0)}, "
+                                 f"b={m['b']}, k={m['k']})", "check the signs: b >= 0, b + 2 k >= 0, a + b + k > 0")
+    if m.get("v_ref") is not None and not (is_number(m["v_ref"]) and float(m["v_ref"]) > 0):
+        raise QrInputError(path, f"command_map.v_ref is {m['v_ref']!r}", "give the reference battery voltage in V")
 
 
 class _Loader(yaml.SafeLoader):

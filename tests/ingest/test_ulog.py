@@ -108,5 +108,6 @@ def test_qr_ingest_of_a_px4_log_with_commands_only_says_what_is_missing(tmp_path
     assert status == 2
     (line,) = err.strip().splitlines()
     assert str(PX4 / "sample.ulg") in line and "motor commands (actuator_outputs" in line
-    assert "fix: log ESC telemetry (PX4: esc_status" in line
+    assert "no command -> thrust map; fix: add rotor_input: command and command_map" in line
+    assert "or log ESC telemetry (PX4: esc_status)" in line
     assert not out.exists()

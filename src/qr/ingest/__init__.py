@@ -11,10 +11,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from ..errors import QrInputError
-from ..flight import validate_flight
+from ..flight import ROTORS, validate_flight
 from ..vehicle import SPEED_IN_RPM
 from . import cf_usd, csv, rosbag, ulog
 
@@ -69,10 +70,31 @@ def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = 
     if unit and vehicle is not None and unit != vehicle.rotor_speed_unit:  # rotor speeds in the vehicle's unit
         for c in ("u1", "u2", "u3", "u4"):
             df[c] = df[c] * SPEED_IN_RPM[unit] / SPEED_IN_RPM[vehicle.rotor_speed_unit]
-    if df.attrs.get("rotor_input") == "command":
+    logged = df.attrs.get("rotor_input", "speed")
+    wanted = vehicle.rotor_input if vehicle is not None else "speed"
+    if logged == "command" and wanted != "command":
         raise QrInputError(src, f"the log has motor commands ({df.attrs['sources']['rotors']}), not measured "
-                                "rotor speeds, and command -> thrust maps (rotor_input: command) are not "
-                                "supported yet",
-                           "log ESC telemetry (PX4: esc_status, from DShot or UAVCAN ESCs) so the rotor speeds "
-                           "are in the log")
+                                "rotor speeds, and the vehicle file has no command -> thrust map",
+                           "add rotor_input: command and command_map: {a, b, k} to the vehicle file "
+                           "(docs/ingest.md), or log ESC telemetry (PX4: esc_status)")
+    if wanted == "command":
+        df = commands_to_speeds(df, vehicle, src)
     return validate_flight(df, src, vehicle)
+
+
+def commands_to_speeds(df: pd.DataFrame, vehicle, src) -> pd.DataFrame:
+    """u1..u4 as normalised commands -> the equivalent rotor speeds of the vehicle's command map
+    (:class:`qr.rotors.CommandMap`), with ``vbat`` where the map has a reference voltage."""
+    c = df[ROTORS].to_numpy(dtype=float)
+    seen = c[np.isfinite(c)]
+    if seen.size and (seen.min() < -0.01 or seen.max() > 1.01):
+        raise QrInputError(src, f"the vehicle reads u1..u4 as commands in [0, 1] (rotor_input: command), and "
+                                f"they span {seen.min():.4g} to {seen.max():.4g}",
+                           "normalise the commands to [0, 1] (PWM: (pwm - min) / (max - min)), or set "
+                           "rotor_input: speed if these are rotor speeds")
+    m = vehicle.command_map
+    vbat = df["vbat"].to_numpy(dtype=float) if m.v_ref is not None and "vbat" in df else None
+    out = df.copy()
+    out[ROTORS] = m.equivalent_speeds(np.clip(c, 0.0, 1.0), vehicle.thrust_coeff, vbat)
+    out.attrs = {**df.attrs, "rotor_input": "command"}
+    return out

@@ -5,7 +5,8 @@
   ``vehicle_attitude`` (q), EKF2's own estimate, which has already fused the IMU.
 - Rotor signals: ``esc_status`` (ESC telemetry, ``esc[i].esc_rpm``: rpm) where logged; else the
   normalised motor commands, ``actuator_motors`` (``control[i]``, 0..1) or ``actuator_outputs``
-  (``output[i]``, PWM, scaled to 0..1 with ``PWM_MAIN_MINi``/``MAXi`` or ``PWM_MIN``/``PWM_MAX``).
+  (``output[i]``, PWM, scaled to 0..1 with ``PWM_MAIN_MINi``/``MAXi`` or ``PWM_MIN``/``PWM_MAX``), which the
+  vehicle's command map turns into rotor speeds (:func:`qr.ingest.commands_to_speeds`).
   Motors keep PX4's numbering (u1 = motor 1): a PX4 vehicle file lists its rotors in that order.
 - IMU: ``sensor_combined`` gyro (rad/s) and accelerometer (m/s², specific force); ``battery_status``
   voltage as ``vbat``.
