@@ -307,10 +307,12 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
 def load_vehicle(path: str | Path) -> Vehicle:
     """A vehicle file, or a shipped vehicle by name (``asctec_hummingbird``: ``conf/vehicle/<name>.yaml``,
     found in an installed qr too)."""
-    from .config import vehicle_path
+    from .config import CONF_DIR
 
-    named = vehicle_path(str(path))
-    path = named if named.exists() else Path(path)
+    path = Path(path)
+    if not path.is_file() and path.suffix not in (".yaml", ".yml") and str(path) == path.name:  # a bare name
+        shipped = Path(CONF_DIR) / "vehicle" / f"{path.name}.yaml"
+        path = shipped if shipped.is_file() else path
     return vehicle_from_dict(_read_yaml(path), path)
 
 

@@ -4,7 +4,8 @@ Each adapter is a function ``read(path) -> DataFrame`` (canonical columns, SI,
 rotor speeds in the unit the source logs) registered in ``ADAPTERS``; detection
 by content is in ``detect_format``.  To add a source (a ROS bag, a public data set), write
 ``ingest/<name>.py`` with such a ``read`` and register it.  An adapter may set ``attrs["sources"]`` (what it
-read) and ``attrs["rotor_input"]`` (``"command"``: normalised motor commands, not rotor speeds).
+read) and ``attrs["rotor_input"]`` (``"command"``: u1..u4 are normalised motor commands, not rotor speeds),
+or give the commands beside the speeds (``cmd1..cmd4``): the vehicle's ``rotor_input`` chooses.
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ def detect_format(path: Path) -> str:
     return "csv"
 
 
+COMMANDS = ["cmd1", "cmd2", "cmd3", "cmd4"]  # an adapter's motor commands beside the rotor speeds, in [0, 1]
+
+
 def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = None) -> pd.DataFrame:
     """Read ``src`` in ``fmt`` (or detect it) and validate it against ``vehicle`` (the stage that writes
     it is :mod:`qr.stages.ingest`)."""
@@ -70,8 +74,14 @@ def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = 
     if unit and vehicle is not None and unit != vehicle.rotor_speed_unit:  # rotor speeds in the vehicle's unit
         for c in ("u1", "u2", "u3", "u4"):
             df[c] = df[c] * SPEED_IN_RPM[unit] / SPEED_IN_RPM[vehicle.rotor_speed_unit]
-    logged = df.attrs.get("rotor_input", "speed")
     wanted = vehicle.rotor_input if vehicle is not None else "speed"
+    if all(c in df for c in COMMANDS):  # a log with both (Crazyflie: rpm and PWM): the vehicle chooses
+        if wanted == "command":
+            df[ROTORS] = df[COMMANDS].to_numpy()
+            df.attrs = {**df.attrs, "rotor_input": "command", "sources": {**df.attrs.get("sources", {}),
+                                                                           "rotors": "motor commands"}}
+        df = df.drop(columns=COMMANDS)
+    logged = df.attrs.get("rotor_input", "speed")
     if logged == "command" and wanted != "command":
         raise QrInputError(src, f"the log has motor commands ({df.attrs['sources']['rotors']}), not measured "
                                 "rotor speeds, and the vehicle file has no command -> thrust map",

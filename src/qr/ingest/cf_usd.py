@@ -123,6 +123,9 @@ def read(path: str | Path) -> pd.DataFrame:
     })
     for i in range(1, 5):
         df[f"u{i}"] = interp(f"rpm.m{i}")
+    if all(f"pwm.m{i}_pwm" in fast for i in range(1, 5)):  # the motor commands too, for a command vehicle
+        for i in range(1, 5):
+            df[f"cmd{i}"] = interp(f"pwm.m{i}_pwm", 1.0 / 65535)  # raw 16-bit command -> [0, 1]
     optional = {"ax": ("acc.x", G), "ay": ("acc.y", G), "az": ("acc.z", G),  # g -> m/s^2, specific force
                 "gx": ("gyro.x", DEG), "gy": ("gyro.y", DEG), "gz": ("gyro.z", DEG),  # deg/s -> rad/s
                 "vbat": ("pm.vbatMV", 1e-3)}  # mV -> V
