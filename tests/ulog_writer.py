@@ -3,8 +3,8 @@
 Written from the ULog file-format specification (docs.px4.io, "ULog File Format"): the 16-byte header,
 the flag-bits message, one format ('F') and one subscription ('A') message per topic, parameters ('P')
 and data ('D') messages in time order. Topics: ``vehicle_local_position`` (NED position),
-``vehicle_attitude`` (FRD -> NED quaternion) and ``actuator_motors`` (normalised motor commands), the
-way a PX4 without ESC telemetry logs a flight. The frame conversion is the inverse of
+``vehicle_attitude`` (FRD -> NED quaternion), ``actuator_motors`` (normalised motor commands) and,
+where given, ``esc_status`` (ESC telemetry rpm). The frame conversion is the inverse of
 ``qr.frames.from_ned_frd``, written out here from its matrices.
 """
 
@@ -26,8 +26,9 @@ def _msg(kind: bytes, payload: bytes) -> bytes:
 
 
 def write_ulog(path: Path, t: np.ndarray, p_enu: np.ndarray, q_enu_flu: np.ndarray, commands: np.ndarray,
-               params: dict | None = None) -> Path:
-    """``t`` (s), positions (N, 3), attitudes (N, 4, scalar first), motor commands (N, 4) in [0, 1]."""
+               params: dict | None = None, rpm: np.ndarray | None = None) -> Path:
+    """``t`` (s), positions (N, 3), attitudes (N, 4, scalar first), motor commands (N, 4) in [0, 1]; with
+    ``rpm`` (N, 4) also ESC telemetry (``esc_status``, a nested ``esc_report[4]``, integer rpm as PX4 logs)."""
     us = np.round(np.asarray(t) * 1e6).astype(np.int64) + 1_000_000
     seen = np.all(np.isfinite(p_enu), axis=1) & np.all(np.isfinite(q_enu_flu), axis=1)  # a dropout: no message
     p_ned = np.asarray(p_enu, float) @ ENU_TO_NED.T
@@ -37,8 +38,12 @@ def write_ulog(path: Path, t: np.ndarray, p_enu: np.ndarray, q_enu_flu: np.ndarr
     topics = [("vehicle_local_position", "uint64_t timestamp;float x;float y;float z;"),
               ("vehicle_attitude", "uint64_t timestamp;float[4] q;"),
               ("actuator_motors", "uint64_t timestamp;float[4] control;")]
+    if rpm is not None:
+        topics.append(("esc_status", "uint64_t timestamp;esc_report[4] esc;"))
     out = bytearray(MAGIC + bytes([1]) + struct.pack("<Q", int(us[0])))
     out += _msg(b"B", bytes(8) + bytes(8) + struct.pack("<3Q", 0, 0, 0))
+    if rpm is not None:
+        out += _msg(b"F", b"esc_report:int32_t esc_rpm;")
     for name, fields in topics:
         out += _msg(b"F", f"{name}:{fields}".encode())
     for key, value in (params or {}).items():
@@ -52,5 +57,7 @@ def write_ulog(path: Path, t: np.ndarray, p_enu: np.ndarray, q_enu_flu: np.ndarr
             out += _msg(b"D", struct.pack("<HQ3f", 0, int(us[k]), *p_ned[k]))
             out += _msg(b"D", struct.pack("<HQ4f", 1, int(us[k]), *q_ned[k]))
         out += _msg(b"D", struct.pack("<HQ4f", 2, int(us[k]), *commands[k]))
+        if rpm is not None:
+            out += _msg(b"D", struct.pack("<HQ4i", 3, int(us[k]), *np.round(rpm[k]).astype(int)))
     Path(path).write_bytes(bytes(out))
     return Path(path)

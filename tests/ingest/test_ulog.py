@@ -111,3 +111,31 @@ def test_qr_ingest_of_a_px4_log_with_commands_only_says_what_is_missing(tmp_path
     assert "no command -> thrust map; fix: add rotor_input: command and command_map" in line
     assert "or log ESC telemetry (PX4: esc_status)" in line
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_a_synthetic_flight_written_as_a_px4_ulog_with_esc_rpm_diagnoses_as_from_its_csv(tmp_path, capsys):
+    """NED/FRD float32 pose, integer ESC rpm (``esc_status``): the same effects as from the CSV, the drag
+    within half a standard error."""
+    import json
+
+    from ulog_writer import write_ulog
+
+    hb = VEHICLES / "asctec_hummingbird.yaml"
+    assert run_cli(["synth", "--vehicle", hb, "--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.15", "--duration", "60",
+                    "--seed", "8", "--out", tmp_path / "synth"], capsys)[0] == 0
+    fl = pd.read_csv(tmp_path / "synth" / "flight.csv")
+    u = fl[["u1", "u2", "u3", "u4"]].to_numpy()
+    write_ulog(tmp_path / "f.ulg", fl["t"].to_numpy(), fl[["px", "py", "pz"]].to_numpy(),
+               fl[["qw", "qx", "qy", "qz"]].to_numpy(), np.full_like(u, 0.5), rpm=u)
+    status, _, err = run_cli(["ingest", tmp_path / "f.ulg", "--vehicle", hb, "--out", tmp_path / "f.parquet"], capsys)
+    assert status == 0, err
+    docs = []
+    for src, out in ((tmp_path / "synth" / "flight.csv", "d_csv"), (tmp_path / "f.parquet", "d_ulog")):
+        status, _, err = run_cli(["diagnose", src, "--vehicle", hb, "--out", tmp_path / out], capsys)
+        assert status == 0, err
+        docs.append({e["name"]: e for e in json.loads((tmp_path / out / "diagnosis.json").read_text())["effects"]})
+    assert list(docs[0]) == list(docs[1]) and "linear_drag" in docs[0]
+    csv, px4 = docs[0]["linear_drag"], docs[1]["linear_drag"]
+    for k, v in csv["parameters"].items():
+        assert px4["parameters"][k] == pytest.approx(v, abs=0.5 * csv["stderr"][k])
