@@ -275,7 +275,7 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
 
 
 def _main(argv):
-    from .procs import Terminated, sigterm_raises
+    from .procs import Terminated, interrupt_in, sigterm_raises
 
     parser = _parser()
     args = _parse(parser, argv)
@@ -291,9 +291,7 @@ def _main(argv):
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT
         except (KeyboardInterrupt, SystemError) as e:
-            # an interrupt that lands while a compiled (numba) function is called comes back wrapped in
-            # a SystemError ("returned a result with an exception set")
-            stop = _interrupt_in(e)
+            stop = interrupt_in(e)  # a SystemError may carry one (a compiled function was running)
             if stop is None:
                 raise
             if isinstance(stop, Terminated):
@@ -302,17 +300,6 @@ def _main(argv):
             print("qr: interrupted; nothing half-written was left", file=sys.stderr)
             return 130
     return 0
-
-
-def _interrupt_in(e: BaseException):
-    """The KeyboardInterrupt (or Terminated) that ``e`` is or was raised while handling, if any."""
-    seen = set()
-    while e is not None and id(e) not in seen:
-        if isinstance(e, KeyboardInterrupt):
-            return e
-        seen.add(id(e))
-        e = e.__cause__ or e.__context__
-    return None
 
 
 def run_as(command: str) -> None:

@@ -124,6 +124,19 @@ def _redeliver_swallowed(unraisable) -> None:
 _previous_hook = None
 
 
+def interrupt_in(e: BaseException | None):
+    """The KeyboardInterrupt (or :class:`Terminated`) that ``e`` is, or was raised while handling, if any:
+    an interrupt that lands while a compiled (numba) function is called comes back wrapped in a
+    ``SystemError`` ("returned a result with an exception set")."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return None
+
+
 @contextlib.contextmanager
 def sigterm_raises() -> Iterator[None]:
     """Within, SIGTERM raises :class:`Terminated` in the main thread instead of ending the process on

@@ -325,8 +325,9 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
                 handle.params(config)
             yield handle
             status = "FINISHED"
-        except KeyboardInterrupt:  # SIGINT, or SIGTERM (Terminated)
-            status = "KILLED"
+        except BaseException as e:  # SIGINT, or SIGTERM (Terminated), possibly wrapped by a compiled call
+            if procs.interrupt_in(e) is not None:
+                status = "KILLED"
             raise
         finally:
             with procs.signals_held():

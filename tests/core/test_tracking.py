@@ -18,10 +18,24 @@ def test_run_has_provenance_and_status(tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         with tracking.run("unit", "bad", {}):
             raise RuntimeError("boom")
+    # a SIGTERM that lands while a compiled (numba) function runs comes back as a SystemError carrying
+    # the interrupt ("returned a result with an exception set"): still a killed run, not a failed one
+    from qr.procs import Terminated
+
+    with pytest.raises(SystemError):
+        with tracking.run("unit", "cut", {}):
+            try:
+                raise Terminated("terminated by signal 15")
+            except Terminated as stop:
+                raise SystemError("CPUDispatcher(...) returned a result with an exception set") from stop
+    with pytest.raises(SystemError):
+        with tracking.run("unit", "crashed", {}):
+            raise SystemError("a plain one")
     client = tracking._client()
     runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
     ok = runs["ok"]
     assert ok.info.status == "FINISHED" and runs["bad"].info.status == "FAILED"
+    assert runs["cut"].info.status == "KILLED" and runs["crashed"].info.status == "FAILED"
     assert ok.data.params["model.layers"] == "2" and ok.data.metrics["rmse"] == 0.5
     assert ok.data.tags["qr.data_digest"] == tracking.data_digest([data]) != "none"
     assert len(ok.data.tags["mlflow.source.git.commit"]) >= 7
