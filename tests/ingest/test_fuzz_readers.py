@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from conftest import VEHICLES, small_flight
@@ -219,22 +219,33 @@ PX4_SMALL = VEHICLES.parents[1].parent / "shared" / "data" / "px4-ulog-samples" 
 @pytest.mark.skipif(not PX4_SMALL.exists(), reason="PX4 sample logs not present")
 @FUZZ
 @given(**damage)
+@example(cut=1.0, flips=[])  # the intact log
 def test_ulog_reader(tmp_path_factory, cut, flips):
     from qr.ingest import ulog
 
     path = tmp_path_factory.mktemp("ulog") / "log.ulg"
     path.write_bytes(_damaged(PX4_SMALL.read_bytes(), cut, flips))
-    _loads_or_one_line(ulog.read, path)
+    _assert_a_flight_or_nothing(_loads_or_one_line(ulog.read, path), intact=cut == 1.0 and not flips)
 
 
 @FUZZ
 @given(**damage)
+@example(cut=1.0, flips=[])
 def test_rosbag_reader(tmp_path_factory, cut, flips):
     from qr.ingest import rosbag
 
     path = tmp_path_factory.mktemp("rosbag") / "f.bag"
     path.write_bytes(_damaged(_ros1_bag(), cut, flips))
-    _loads_or_one_line(rosbag.read, path)
+    _assert_a_flight_or_nothing(_loads_or_one_line(rosbag.read, path), intact=cut == 1.0 and not flips)
+
+
+def _assert_a_flight_or_nothing(df, intact: bool):
+    """What loads is a flight (time strictly increasing, the pose and rotor columns); the intact log loads."""
+    if intact:
+        assert df is not None
+    if df is not None:
+        assert {"t", "px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"} <= set(df.columns)
+        assert len(df) == 0 or bool(np.all(np.diff(df["t"].to_numpy()) > 0))
 
 
 @functools.lru_cache(maxsize=1)
