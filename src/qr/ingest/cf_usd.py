@@ -21,6 +21,7 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..frames import G
+from . import resample
 
 MAGIC = b"\xbc"
 POSE_EVENT = "estPose"
@@ -113,7 +114,7 @@ def read(path: str | Path) -> pd.DataFrame:
     tf = (fast["timestamp_us"].to_numpy() - t0) * 1e-6
 
     def interp(col, scale=1.0):
-        return np.interp(t, tf, fast[col].to_numpy() * scale, left=np.nan, right=np.nan)
+        return resample.onto(t, tf, fast[col].to_numpy() * scale)
 
     df = pd.DataFrame({
         "t": t,

@@ -23,6 +23,7 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..frames import make_continuous
+from . import resample
 
 POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
 ROTOR_TYPES = ("mav_msgs/msg/Actuators",)
@@ -138,9 +139,7 @@ def _read(reader, path: Path, topics: dict) -> pd.DataFrame:
                        "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
 
     def onto(stamps, values):
-        rel = np.array([s - t0 for s in stamps], dtype=float)
-        order = np.argsort(rel, kind="stable")
-        return np.interp(t_ns, rel[order], np.asarray(values, float)[order], left=np.nan, right=np.nan)
+        return resample.onto(t_ns, np.array([s - t0 for s in stamps], dtype=float), values)
 
     stamps, speeds = [], []
     for msg, rec in messages(rotor_c):

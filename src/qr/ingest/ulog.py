@@ -28,6 +28,7 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..frames import frd_to_flu, from_ned_frd
+from . import resample
 
 POSE_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
 
@@ -130,9 +131,7 @@ def read(path: str | Path) -> pd.DataFrame:
     t = (t_us - t0) * 1e-6
 
     def onto(ts_us, values):
-        ts = (ts_us - t0) * 1e-6
-        order = np.argsort(ts, kind="stable")
-        return np.interp(t, ts[order], np.asarray(values, float)[order], left=np.nan, right=np.nan)
+        return resample.onto(t, (np.asarray(ts_us, np.int64) - t0) * 1e-6, values)
 
     p, q = from_ned_frd(p_ned, q_ned)
     df = pd.DataFrame({"t": t, "px": p[:, 0], "py": p[:, 1], "pz": p[:, 2],

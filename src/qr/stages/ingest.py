@@ -17,19 +17,22 @@ from ..ingest import read_log
 from ..ingest.summary import flight_summary
 
 
-def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False) -> pd.DataFrame:
+def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False,
+           report_offsets: bool = False) -> pd.DataFrame:
     """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically.
 
-    The gyro's time offset against the motion capture is estimated (:mod:`qr.ingest.align`,
-    ``attrs["time_offsets"]``) and, with ``align``, applied."""
+    With ``report_offsets`` (``qr ingest``) or ``align`` the gyro's time offset against the motion
+    capture is estimated (:mod:`qr.ingest.align`, ``attrs["time_offsets"]``); with ``align`` applied. The
+    workflow's ingest does neither (nothing reads the offset there)."""
     from ..flight import write_flight
     from ..ingest import align as align_mod
 
     df = read_log(src, vehicle, fmt, topics)
-    found = align_mod.offsets(df)
-    if align:
-        df = align_mod.apply(df, found)
-    df.attrs["time_offsets"] = found
+    if align or report_offsets:
+        found = align_mod.offsets(df)
+        if align:
+            df = align_mod.apply(df, found)
+        df.attrs["time_offsets"] = found
     write_flight(df, out)
     return df
 
@@ -44,7 +47,7 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, 
     if Path(out).suffix not in (".csv", ".parquet"):
         raise QrInputError(out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
                            "*.parquet")
-    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align)
+    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align, report_offsets=True)
 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:
