@@ -44,7 +44,7 @@ def cross(a, b):
 
 @nb.njit(cache=True)
 def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
-    """``a ⊗ b`` on scalars (no array: for the filters' inner loops); :func:`qmul` on arrays."""
+    """``a ⊗ b`` on scalars (no array: for the filters' inner loops)."""
     return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,
             a0 * b1 + a1 * b0 + a2 * b3 - a3 * b2,
             a0 * b2 - a1 * b3 + a2 * b0 + a3 * b1,
@@ -76,26 +76,6 @@ def qlog_s(q0, q1, q2, q3):
     else:
         s = th / math.sin(th / 2)
     return s * v0, s * v1, s * v2
-
-
-@nb.njit(cache=True)
-def qmul(a, b):
-    return np.array(qmul_s(a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]))
-
-
-@nb.njit(cache=True)
-def qexp(phi):
-    return np.array(qexp_s(phi[0], phi[1], phi[2]))
-
-
-@nb.njit(cache=True)
-def qlog(q):
-    return np.array(qlog_s(q[0], q[1], q[2], q[3]))
-
-
-@nb.njit(cache=True)
-def qconj(q):
-    return np.array([q[0], -q[1], -q[2], -q[3]])
 
 
 @nb.njit(cache=True)

@@ -52,13 +52,6 @@ def chain_q_into(m, dt, q, exact, Q):
 
 
 @nb.njit(cache=True)
-def chain_q(m, dt, q, exact):
-    Q = np.empty((m, m))
-    chain_q_into(m, dt, q, exact, Q)
-    return Q
-
-
-@nb.njit(cache=True)
 def _chain_coeffs(m, dt, out):
     """``out[d] = dt^d / d!``: the entries of Φ on its d-th superdiagonal."""
     out[0] = 1.0
@@ -354,7 +347,7 @@ def eskf_predict(P, R, c, T, out):
 @nb.njit(cache=True)
 def eskf_add_q(P, R, dt, qd, exact, Qc):
     """``P += Q_d``: eq. 4.20 (``G Q Gᵀ dt²``) or the exact integral with its δθ rows rotated by Rᵀ
-    (``Qc``: the chain's unit-intensity noise over ``dt``, ``chain_q(4, dt, 1, True)``)."""
+    (``Qc``: the chain's unit-intensity noise over ``dt``, ``chain_q_into(4, dt, 1, True, Qc)``)."""
     if not exact:
         for a in range(3):
             P[9 + a, 9 + a] += qd[a] * dt * dt
