@@ -73,8 +73,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--topic", action="append", metavar="KIND=/NAME",
                    help="ROS bags: the topic of a kind (pose, rotors, imu) where the bag has several")
     s.add_argument("--align", action="store_true",
-                   help="move the gyro by its estimated time offset to the motion capture (always estimated and "
-                        "printed where the log has a gyro)")
+                   help="move the gyro and the rotor stream by their time offsets to the motion capture (always "
+                        "estimated and printed; the rotor offset includes the motors' response)")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,

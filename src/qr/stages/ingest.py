@@ -21,15 +21,15 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
            report_offsets: bool = False) -> pd.DataFrame:
     """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically.
 
-    With ``report_offsets`` (``qr ingest``) or ``align`` the gyro's time offset against the motion
-    capture is estimated (:mod:`qr.ingest.align`, ``attrs["time_offsets"]``); with ``align`` applied. The
-    workflow's ingest does neither (nothing reads the offset there)."""
+    With ``report_offsets`` (``qr ingest``) or ``align`` the gyro's and the rotor stream's time offsets
+    against the motion capture are estimated (:mod:`qr.ingest.align`, ``attrs["time_offsets"]``); with
+    ``align`` applied. The workflow's ingest does neither (nothing reads the offset there)."""
     from ..flight import write_flight
     from ..ingest import align as align_mod
 
     df = read_log(src, vehicle, fmt, topics)
     if align or report_offsets:
-        found = align_mod.offsets(df)
+        found = align_mod.offsets(df, vehicle)
         if align:
             df = align_mod.apply(df, found)
         df.attrs["time_offsets"] = found
