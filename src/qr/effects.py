@@ -22,6 +22,14 @@ from .flight import HOVER_RATIO_LIMITS
 from .frames import GRAVITY, skew
 
 
+def _as_slice(idx):
+    """``idx`` as a slice where it is a run of consecutive indices (else unchanged)."""
+    if isinstance(idx, np.ndarray) and idx.ndim == 1 and idx.dtype.kind in "iu" and idx.size \
+            and idx[-1] - idx[0] == idx.size - 1 and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
 @dataclass
 class Signals:
     """Body-frame kinematics and rotor speeds of the tracked point, one row per sample."""
@@ -49,8 +57,20 @@ class Signals:
         return len(self.u)
 
     def take(self, idx) -> "Signals":
-        return Signals(*(None if getattr(self, f) is None else getattr(self, f)[idx]
-                         for f in self.__dataclass_fields__))
+        """Rows ``idx`` (a slice or indices). A slice, or a run of consecutive indices (most chunks of a
+        training part), gives read-only views: no copy of a long flight's signals per chunk."""
+        idx = _as_slice(idx)
+        view = isinstance(idx, slice)
+
+        def rows(a):
+            if a is None:
+                return None
+            out = a[idx]
+            if view:
+                out.flags.writeable = False
+            return out
+
+        return Signals(*(rows(getattr(self, f)) for f in self.__dataclass_fields__))
 
     @staticmethod
     def concat(parts: list["Signals"]) -> "Signals":

@@ -125,6 +125,12 @@ def _check_delimiter(path: Path, header: list[str], text: str):
 
 def _check_row_lengths(path: Path, text: str, n: int):
     """Every row has the header's number of cells (pandas would shift or cut a longer row, pad a shorter one)."""
+    if '"' not in text:  # no quoting: a row's cells are its commas plus one (the csv module is 10x slower)
+        for line, row in enumerate(text.splitlines(), 1):
+            if row and row.count(",") + 1 != n:
+                break
+        else:
+            return
     try:
         for line, row in enumerate(csv.reader(io.StringIO(text, newline=""), skipinitialspace=True), 1):
             if row and len(row) != n:

@@ -281,10 +281,13 @@ def first_delay(prep: Prepared, vehicle, cfg: DiagnoseConfig) -> float:
 
 
 def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame], vehicle,
-             cfg: DiagnoseConfig, seed: int = 0, progress=None, pairs=None) -> dict:
-    """``pairs``: per flight the (even, odd) half-sample state tables for cross-fitting (recommended)."""
+             cfg: DiagnoseConfig, seed: int = 0, progress=None, pairs=None, prepared=None) -> dict:
+    """``pairs``: per flight the (even, odd) half-sample state tables for cross-fitting (recommended);
+    ``prepared(prep)``: called with the nominal residuals as soon as they exist."""
     step = progress or (lambda msg: None)
     prep = prepare(states_list, vehicle, cfg)
+    if prepared is not None:
+        prepared(prep)
     fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
     noise_scale = calibrate(fitprep, prep) if pairs else None
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]

@@ -308,7 +308,9 @@ def _data_used(doc: dict) -> list[str]:
     return (["Data used (times in each flight's own clock):\n", *L, ""]) if L else []
 
 
-def make_figures(outdir: Path, res: dict, vehicle) -> dict:
+def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
+    """The report's figures into ``outdir/figures``; ``anatomy``: a :class:`BackgroundFigure` already
+    drawing the residual anatomy."""
     figdir = outdir / "figures"
     figdir.mkdir(exist_ok=True)
     prep = res["prep"]
@@ -354,6 +356,19 @@ def make_figures(outdir: Path, res: dict, vehicle) -> dict:
     figures.save(fig, figdir / "replay_drift.png")
     out["Open-loop replay: drift of the nominal and extended models"] = "replay_drift.png"
 
+    if anatomy is None:
+        anatomy_figure(prep, vehicle, figdir / "residual_anatomy.png")
+    else:
+        anatomy.collect(figdir / "residual_anatomy.png")
+    out["Residual anatomy: nominal residual against body velocity, height, thrust and the rotor speeds "
+        "(binned means, one colour per rotor)"] = \
+        "residual_anatomy.png"
+    return out
+
+
+def anatomy_figure(prep, vehicle, path: Path) -> None:
+    """The nominal residual against the regressors of the catalog's effects (binned means): needs the
+    prepared data only, so it can be drawn while the selection runs (:class:`BackgroundFigure`)."""
     # at most 20000 points per panel: a scatter of a 1-hour log would take minutes to draw
     step = max(1, len(prep.t) // 20000)
     s = prep.s.take(slice(None, None, step))
@@ -385,11 +400,7 @@ def make_figures(outdir: Path, res: dict, vehicle) -> dict:
                 ax.set_xlabel(name, fontsize=7)
             ax.xaxis.set_major_locator(MaxNLocator(3))  # few ticks: the panels' tick layout is most of the cost
             ax.tick_params(labelsize=6)
-    figures.save(fig, figdir / "residual_anatomy.png", tight=False)
-    out["Residual anatomy: nominal residual against body velocity, height, thrust and the rotor speeds "
-        "(binned means, one colour per rotor)"] = \
-        "residual_anatomy.png"
-    return out
+    figures.save(fig, path, tight=False)
 
 
 def _binned(ax, x, y, bins=15, color="C3", label=None):

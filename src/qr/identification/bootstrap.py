@@ -12,8 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .box_qp import box_qp_many
-from .normal_equations import BlockStats, positive_definite
+from .normal_equations import BlockStats, solve_many
 
 
 @lru_cache(maxsize=64)
@@ -43,20 +42,3 @@ def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: 
     return solve_many(Gb, hb, *stats.bounds(idx))
 
 
-def solve_many(Gb: np.ndarray, hb: np.ndarray, lb=None, ub=None) -> np.ndarray:
-    """``solve`` for a stack of normal equations (n, p, p), (n, p): all at once, bounded ones one by one."""
-    p = Gb.shape[1]
-    diag = np.einsum("nii->ni", Gb)
-    d = np.sqrt(np.maximum(diag, 1e-12 * np.maximum(np.abs(diag).max(axis=1, keepdims=True), 1e-300)))
-    Gn = Gb / (d[:, :, None] * d[:, None, :])
-    Gn[:, np.arange(p), np.arange(p)] += 1e-9
-    low = np.linalg.eigvalsh(Gn)[:, 0]  # as `solve`: a direction lost to regressor noise is held at the floor
-    for i in np.flatnonzero(low < 1e-6):
-        Gn[i] = positive_definite(Gn[i])
-    out = np.linalg.solve(Gn, (hb / d)[:, :, None])[:, :, 0] / d
-    if lb is not None:
-        rows = np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1))
-        if rows.size:
-            out[rows] = box_qp_many(Gn[rows], hb[rows] / d[rows], lb * d[rows], ub * d[rows],
-                                    out[rows] * d[rows]) / d[rows]
-    return out

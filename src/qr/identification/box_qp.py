@@ -72,6 +72,68 @@ def _box_qp_many(G, h, lb, ub, x0, out):
     return ok
 
 
+@nb.njit(cache=True)
+def _cholesky(A, L):
+    """``A = L Lᵀ`` into ``L``; False where ``A`` is not positive definite."""
+    p = A.shape[0]
+    for j in range(p):
+        v = A[j, j]
+        for k in range(j):
+            v -= L[j, k] * L[j, k]
+        if not v > 0.0:
+            return False
+        L[j, j] = np.sqrt(v)
+        for i in range(j + 1, p):
+            v = A[i, j]
+            for k in range(j):
+                v -= L[i, k] * L[j, k]
+            L[i, j] = v / L[j, j]
+        for i in range(j):
+            L[i, j] = 0.0
+    return True
+
+
+@nb.njit(cache=True)
+def scaled_solve_many(G, h, ridge, floor, Gn, d, out):
+    """Each system of a stack scaled to a unit diagonal (``Gn = G / d dᵀ`` plus ``ridge``) and solved
+    by Cholesky; False where ``Gn`` has an eigenvalue below ``floor`` (``Gn - floor I`` has no Cholesky
+    factor), left for the caller to repair."""
+    n, p = h.shape
+    ok = np.empty(n, np.bool_)
+    L = np.empty((p, p))
+    shifted = np.empty((p, p))
+    y = np.empty(p)
+    for k in range(n):
+        top = 0.0
+        for i in range(p):
+            top = max(top, abs(G[k, i, i]))
+        low = 1e-12 * max(top, 1e-300)
+        for i in range(p):
+            d[k, i] = np.sqrt(max(G[k, i, i], low))
+        for i in range(p):
+            for j in range(p):
+                Gn[k, i, j] = G[k, i, j] / (d[k, i] * d[k, j])
+                shifted[i, j] = Gn[k, i, j]
+            Gn[k, i, i] += ridge
+            shifted[i, i] += ridge - floor
+        ok[k] = _cholesky(shifted, L) and _cholesky(Gn[k], L)
+        if not ok[k]:
+            continue
+        for i in range(p):  # L y = h / d, Lᵀ x = y
+            v = h[k, i] / d[k, i]
+            for j in range(i):
+                v -= L[i, j] * y[j]
+            y[i] = v / L[i, i]
+        for i in range(p - 1, -1, -1):
+            v = y[i]
+            for j in range(i + 1, p):
+                v -= L[j, i] * out[k, j]
+            out[k, i] = v / L[i, i]
+        for i in range(p):
+            out[k, i] /= d[k, i]
+    return ok
+
+
 def box_qp_many(G: np.ndarray, h: np.ndarray, lb: np.ndarray, ub: np.ndarray, x0: np.ndarray) -> np.ndarray:
     """``box_qp`` for a stack (n, p, p), (n, p); bounds (p,) or (n, p)."""
     G, h = np.ascontiguousarray(G, float), np.ascontiguousarray(h, float)

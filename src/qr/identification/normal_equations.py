@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 
 from ..effects import CATALOG, Signals
-from .box_qp import box_qp
+from .box_qp import box_qp, box_qp_many, scaled_solve_many
 
 
 @dataclass
@@ -185,6 +185,23 @@ def solve(G: np.ndarray, h: np.ndarray, ridge: float = 1e-9, lb=None, ub=None) -
     return box_qp(Gs, h / d, lb * d, ub * d, theta * d) / d
 
 
+def solve_many(G: np.ndarray, h: np.ndarray, lb=None, ub=None, ridge: float = 1e-9) -> np.ndarray:
+    """``solve`` for a stack of normal equations (n, p, p), (n, p): compiled, bounded ones one by one."""
+    n, p = h.shape
+    G, h = np.ascontiguousarray(G, float), np.ascontiguousarray(h, float)
+    Gn, d, out = np.empty_like(G), np.empty_like(h), np.empty_like(h)
+    ok = scaled_solve_many(G, h, ridge, 1e-6, Gn, d, out)
+    for i in np.flatnonzero(~ok):  # as `solve`: a direction lost to regressor noise is held at the floor
+        Gn[i] = positive_definite(Gn[i])
+        out[i] = np.linalg.solve(Gn[i], h[i] / d[i]) / d[i]
+    if lb is not None:
+        rows = np.flatnonzero(np.any(out < lb, axis=1) | np.any(out > ub, axis=1))
+        if rows.size:
+            out[rows] = box_qp_many(Gn[rows], h[rows] / d[rows], lb * d[rows], ub * d[rows],
+                                    out[rows] * d[rows]) / d[rows]
+    return out
+
+
 def loss(G, h, s, n, theta) -> float:
     return float((s - 2 * theta @ h + theta @ G @ theta) / max(n, 1.0))
 
@@ -243,7 +260,8 @@ class CrossValidator:
             val = self.fold_of == f
             near = val | np.roll(val, 1) | np.roll(val, -1)
             self.train.append(np.flatnonzero(~near))
-        self._train_sums = [stats.subset(t)[:2] for t in self.train]  # the same for every candidate set
+        sums = [stats.subset(t)[:2] for t in self.train]  # the same for every candidate set
+        self._train_G, self._train_h = np.stack([g for g, _ in sums]), np.stack([h for _, h in sums])
         self._cache: dict[tuple, np.ndarray] = {}
 
     def block_losses(self, effects, on: BlockStats | None = None) -> np.ndarray:
@@ -253,13 +271,14 @@ class CrossValidator:
         if key not in self._cache:
             st, ev = self.stats, on or self.stats
             idx = st.cols.index(list(key[0]))
-            out = np.empty(st.blocks)
-            for f in range(self.folds):
-                G, h = self._train_sums[f]
-                theta = solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *st.bounds(idx))
-                vb = np.flatnonzero(self.fold_of == f)
-                Gv = ev.G[np.ix_(vb, idx, idx)]
-                out[vb] = ev.s[vb] - 2 * ev.h[np.ix_(vb, idx)] @ theta + np.einsum("i,bij,j->b", theta, Gv, theta)
+            if idx.size:
+                theta = solve_many(self._train_G[:, idx[:, None], idx[None, :]], self._train_h[:, idx],
+                                   *st.bounds(idx))
+            else:
+                theta = np.zeros((self.folds, 0))
+            th = theta[self.fold_of]  # each block's fold's fit
+            out = ev.s - 2 * np.einsum("bi,bi->b", ev.h[:, idx], th) + np.einsum(
+                "bi,bij,bj->b", th, ev.G[:, idx[:, None], idx[None, :]], th)
             self._cache[key] = out
         return self._cache[key]
 

@@ -47,6 +47,17 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
     ``reports`` / ``estimates``: per flight, the filter stage's report and cross-fit file; a segment
     found there with the same filter settings is read, not filtered again (the same numbers)."""
+    background = []  # figures drawn by a child process: stopped and removed however the run ends
+    try:
+        return _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures, force,
+                              estimates, background)
+    finally:
+        for b in background:
+            b.close()
+
+
+def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures, force, estimates,
+                   background):
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
@@ -60,7 +71,8 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     from ..diagnose.crossfit import Estimates, prepare_flight
     from ..torque_remainder import FEATURES
     from ..diagnose.core import DiagnoseConfig, diagnose, extended_effects
-    from ..diagnose.report import make_figures, note_nulls, to_json, write_report
+    from ..diagnose.report import anatomy_figure, make_figures, note_nulls, to_json, write_report
+    from ..report.background import BackgroundFigure
 
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
     cfg = _compose(overrides)
@@ -101,7 +113,12 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     work.sort(key=lambda w: w[:2])  # flights in order, each one's segments in time order
     _, _, states, pairs, pieces = (list(x) for x in zip(*work))
     say("identifying effects")
-    res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs)
+
+    def draw_anatomy(prep):  # it needs only the nominal residuals: drawn while the selection runs
+        background.append(BackgroundFigure(lambda path: anatomy_figure(prep, vehicle, path)))
+
+    res = diagnose(states, pieces, vehicle, dcfg, seed=int(cfg.seed), progress=lambda s: say(s), pairs=pairs,
+                   prepared=draw_anatomy if figures else None)
     from ..rollout import EvaluateConfig
     from ..diagnose.core import rollout_all, summed_r2
     from ..diagnose.remainder import remainder
@@ -147,7 +164,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
     strict = note_nulls(doc)  # diagnosis.json: null (and a note) where the report prints nan
     ext = hybrid or ext
     with atomic_dir(out, force=force, command="qr diagnose") as tmp:
-        figs = make_figures(tmp, res, vehicle) if figures else {}
+        figs = make_figures(tmp, res, vehicle, background[0] if background else None) if figures else {}
         write_report(tmp, doc, res, figs)
         write_json(tmp / "diagnosis.json", strict)
         save_vehicle(ext, tmp / "extended_vehicle.yaml",

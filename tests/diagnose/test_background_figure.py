@@ -1,0 +1,101 @@
+"""The residual anatomy drawn by a forked child while the selection runs (``qr.report.background``):
+the same file as drawn in the parent, a failed child redrawn in the parent, nothing left behind when a
+diagnosis stops early."""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+
+import pytest
+
+from qr.report.background import BackgroundFigure
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="drawn in the parent elsewhere")
+
+
+def _draw_figure(path):
+    from qr.report import figures
+
+    fig, ax = figures.subplots(2, 2, figsize=(4, 3))
+    ax[0, 0].plot([0, 1, 2], [1, 0, 2])
+    figures.save(fig, path, tight=False)
+
+
+@pytest.fixture
+def private_tmp(tmp_path, monkeypatch):
+    """The child's scratch folders go here, so the test can see what is left."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "scratch"))
+    (tmp_path / "scratch").mkdir()
+    return tmp_path / "scratch"
+
+
+def _no_children():
+    with pytest.raises(ChildProcessError):
+        os.waitpid(-1, os.WNOHANG)
+    return True
+
+
+@linux
+def test_the_child_draws_the_file_the_parent_would(tmp_path, private_tmp):
+    parent = os.getpid()
+    drawn_by = tmp_path / "who"
+
+    def draw(path):
+        drawn_by.write_text("child" if os.getpid() != parent else "parent")
+        _draw_figure(path)
+
+    bg = BackgroundFigure(draw)
+    bg.collect(tmp_path / "forked.png")
+    assert drawn_by.read_text() == "child"
+    _draw_figure(tmp_path / "here.png")
+    assert (tmp_path / "forked.png").read_bytes() == (tmp_path / "here.png").read_bytes()
+    assert list(private_tmp.iterdir()) == [] and _no_children()
+
+
+@linux
+def test_a_failed_child_is_redrawn_in_the_parent(tmp_path, private_tmp):
+    parent = os.getpid()
+
+    def draw(path):
+        if os.getpid() != parent:
+            raise RuntimeError("the child fails")
+        _draw_figure(path)
+
+    BackgroundFigure(draw).collect(tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0
+    assert list(private_tmp.iterdir()) == [] and _no_children()
+
+
+@linux
+def test_a_diagnosis_stopped_after_the_figure_started_leaves_no_child_and_no_files(tmp_path, private_tmp,
+                                                                                 monkeypatch):
+    from conftest import VEHICLES
+    from qr.effects import parse_effect_spec
+    from qr.identification import selection
+    from qr.sim.synth import SynthConfig, write_synth
+    from qr.stages.diagnose import run_diagnosis
+    from qr.vehicle import load_vehicle
+
+    write_synth(tmp_path / "f", load_vehicle(VEHICLES / "asctec_hummingbird.yaml"),
+                [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15")], SynthConfig(duration=40, seed=3))
+    started = []
+    real = BackgroundFigure.__init__
+
+    def spy(self, draw):
+        real(self, draw)
+        started.append(self)
+
+    def stop(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(BackgroundFigure, "__init__", spy)
+    monkeypatch.setattr(selection, "select", stop)
+    monkeypatch.setattr("qr.diagnose.core.select", stop)
+    with pytest.raises(KeyboardInterrupt):
+        run_diagnosis([tmp_path / "f" / "flight.csv"], tmp_path / "f" / "vehicle.yaml", tmp_path / "out",
+                      track=False, log=lambda m: None)
+    assert len(started) == 1  # the figure had started when the selection stopped
+    assert list(private_tmp.iterdir()) == [] and _no_children()
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
