@@ -260,6 +260,29 @@ def test_the_compiled_bounded_solver_finds_the_bvls_minimiser():
     assert np.allclose(box_qp(G, h, [-10, 0], [10, 10]), [0.5, 0.0])
 
 
+def test_the_batched_solve_is_the_single_solve_with_its_floor_and_bounds():
+    """``solve_many`` (compiled Cholesky, the eigenvalue floor as a shifted factorisation) gives, system
+    by system, what ``solve`` gives (numpy's eigh and LU): well-posed, rank-deficient (a column repeated:
+    held at the floor) and bound-limited systems in one stack."""
+    from qr.identification.normal_equations import solve, solve_many
+
+    rng = np.random.default_rng(11)
+    p, Gs, hs = 5, [], []
+    for k in range(40):
+        A = rng.normal(size=(30, p)) * np.exp(rng.normal(size=p))
+        if k % 4 == 1:
+            A[:, 3] = A[:, 1]  # singular: a direction with no information
+        Gs.append(A.T @ A)
+        hs.append(A.T @ rng.normal(size=30) * (8.0 if k % 4 == 2 else 1.0))  # some far outside the bounds
+    G, h = np.array(Gs), np.array(hs)
+    lb, ub = -np.ones(p), np.ones(p)
+    for bounds in ((None, None), (lb, ub)):
+        many = solve_many(G, h, *bounds)
+        one = np.array([solve(G[k], h[k], 1e-9, *bounds) for k in range(len(G))])
+        assert np.allclose(many, one, rtol=1e-7, atol=1e-9)
+    assert np.all(np.abs(many) <= 1 + 1e-12) and np.any(np.isclose(np.abs(many), 1.0))  # bounds bite somewhere
+
+
 def test_per_row_normal_equations_sum_to_any_set_of_rows():
     """``accumulate`` keeps each of the six rows' statistics apart; a set of rows (force, torque, all) is
     their sum, equal to the weighted normal equations of those rows alone, written out directly."""

@@ -15,6 +15,7 @@ import numba as nb
 import numpy as np
 
 from ..frames_compiled import R_entries, qexp_s, qlog_s, qmul_s
+from ..linalg_compiled import cholesky_solve as _cholesky_solve
 
 # ---- integrator chains ---------------------------------------------------------------
 
@@ -169,42 +170,6 @@ def _inverse(A, out, W):
 
 # The small matrix products below run in i-l-j order (row updates): the same sums in the same order
 # as the textbook i-j-l dot products, but the inner loop is contiguous and vectorises.
-
-
-@nb.njit(cache=True)
-def _cholesky_solve(A, B, L, X):
-    """``X = A⁻¹ B`` for a symmetric positive-definite ``A`` (Cholesky ``A = L Lᵀ``); False (and ``X``
-    undefined) if ``A`` is not numerically positive definite.  Less than half the work of an inverse."""
-    n, m = A.shape[0], B.shape[1]
-    for j in range(n):
-        s = A[j, j]
-        for l in range(j):
-            s -= L[j, l] * L[j, l]
-        if not s > 0.0:
-            return False
-        L[j, j] = math.sqrt(s)
-        for i in range(j + 1, n):
-            s = A[i, j]
-            for l in range(j):
-                s -= L[i, l] * L[j, l]
-            L[i, j] = s / L[j, j]
-    for i in range(n):  # L Y = B
-        for c in range(m):
-            X[i, c] = B[i, c]
-        for l in range(i):
-            f = L[i, l]
-            for c in range(m):
-                X[i, c] -= f * X[l, c]
-        for c in range(m):
-            X[i, c] /= L[i, i]
-    for i in range(n - 1, -1, -1):  # Lᵀ X = Y
-        for l in range(i + 1, n):
-            f = L[l, i]
-            for c in range(m):
-                X[i, c] -= f * X[l, c]
-        for c in range(m):
-            X[i, c] /= L[i, i]
-    return True
 
 
 @nb.njit(cache=True)

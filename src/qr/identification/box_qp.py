@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from ..linalg_compiled import cholesky, cholesky_solve
+
 
 @nb.njit(cache=True)
 def _box_qp(G, h, lb, ub, x0):
@@ -73,27 +75,6 @@ def _box_qp_many(G, h, lb, ub, x0, out):
 
 
 @nb.njit(cache=True)
-def _cholesky(A, L):
-    """``A = L Lᵀ`` into ``L``; False where ``A`` is not positive definite."""
-    p = A.shape[0]
-    for j in range(p):
-        v = A[j, j]
-        for k in range(j):
-            v -= L[j, k] * L[j, k]
-        if not v > 0.0:
-            return False
-        L[j, j] = np.sqrt(v)
-        for i in range(j + 1, p):
-            v = A[i, j]
-            for k in range(j):
-                v -= L[i, k] * L[j, k]
-            L[i, j] = v / L[j, j]
-        for i in range(j):
-            L[i, j] = 0.0
-    return True
-
-
-@nb.njit(cache=True)
 def scaled_solve_many(G, h, ridge, floor, Gn, d, out):
     """Each system of a stack scaled to a unit diagonal (``Gn = G / d dᵀ`` plus ``ridge``) and solved
     by Cholesky; False where ``Gn`` has an eigenvalue below ``floor`` (``Gn - floor I`` has no Cholesky
@@ -102,7 +83,7 @@ def scaled_solve_many(G, h, ridge, floor, Gn, d, out):
     ok = np.empty(n, np.bool_)
     L = np.empty((p, p))
     shifted = np.empty((p, p))
-    y = np.empty(p)
+    rhs, x = np.empty((p, 1)), np.empty((p, 1))
     for k in range(n):
         top = 0.0
         for i in range(p):
@@ -116,21 +97,11 @@ def scaled_solve_many(G, h, ridge, floor, Gn, d, out):
                 shifted[i, j] = Gn[k, i, j]
             Gn[k, i, i] += ridge
             shifted[i, i] += ridge - floor
-        ok[k] = _cholesky(shifted, L) and _cholesky(Gn[k], L)
-        if not ok[k]:
-            continue
-        for i in range(p):  # L y = h / d, Lᵀ x = y
-            v = h[k, i] / d[k, i]
-            for j in range(i):
-                v -= L[i, j] * y[j]
-            y[i] = v / L[i, i]
-        for i in range(p - 1, -1, -1):
-            v = y[i]
-            for j in range(i + 1, p):
-                v -= L[j, i] * out[k, j]
-            out[k, i] = v / L[i, i]
-        for i in range(p):
-            out[k, i] /= d[k, i]
+            rhs[i, 0] = h[k, i] / d[k, i]
+        ok[k] = cholesky(shifted, L) and cholesky_solve(Gn[k], rhs, L, x)
+        if ok[k]:
+            for i in range(p):
+                out[k, i] = x[i, 0] / d[k, i]
     return ok
 
 
