@@ -39,7 +39,7 @@ STRIDE = 32
 CHUNKS = 16  # fixed, not the thread count: the summation order (and so every digit) is the same anywhere
 
 
-@nb.njit(cache=True, parallel=True)
+@nb.njit(cache=True, parallel=True, nogil=True)
 def _rollout(t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
     """Accumulate error sums (H, 4) and counts (H, 4) over every allowed start (chunks in parallel)."""
     part_s = np.zeros((CHUNKS, H, 4))

@@ -8,6 +8,7 @@ report need.  It does no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import reduce
 
 import numpy as np
 import pandas as pd
@@ -20,7 +21,7 @@ from ..identification.bootstrap import bootstrap
 from ..identification.normal_equations import (BlockStats, Columns, accumulate, bounded_noise, design, fit, loss,
                                                 regressor_noise, row_sums)
 from ..identification.selection import ROWS, select, torque_arbitration
-from ..parallel import thread_map
+from ..parallel import thread_map, workers
 from ..states import signals
 from ..torque_remainder import torque as remainder_torque
 from . import replay as replay_mod
@@ -165,16 +166,29 @@ def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = N
     n = prep.pair_offset
     if n and EIV:  # cross-fitting halves: rows i and i + n, labels and regressors swapped
         idx = idx[idx < n]
-    acc = (np.zeros((6, n_blocks, p, p)), np.zeros((6, n_blocks, p)), np.zeros((6, n_blocks)), np.zeros(n_blocks))
-    noise = np.zeros((6, n_blocks, p, p))
-    for start in range(0, idx.size, CHUNK):
-        sl = idx[start:start + CHUNK]
-        parts = [sl, sl + n] if n and EIV else [sl]
-        Xs = [design(s_design.take(r), vehicle, cols) for r in parts]
-        for r, X in zip(parts, Xs):
-            accumulate(X, y[r], w0[r], prep.block[r], n_blocks, out=acc)
-        if len(Xs) == 2:  # the regressors' own noise, which the fit would otherwise count as signal
-            regressor_noise(Xs[1] - Xs[0], 0.5 * (w0[parts[0]] + w0[parts[1]]), prep.block[sl], n_blocks, out=noise)
+
+    def chunks(starts):
+        """The statistics of a run of chunks, summed in order (from zeros)."""
+        acc = (np.zeros((6, n_blocks, p, p)), np.zeros((6, n_blocks, p)), np.zeros((6, n_blocks)), np.zeros(n_blocks))
+        noise = np.zeros((6, n_blocks, p, p))
+        for start in starts:
+            sl = idx[start:start + CHUNK]
+            parts = [sl, sl + n] if n and EIV else [sl]
+            Xs = [design(s_design.take(r), vehicle, cols) for r in parts]
+            for r, X in zip(parts, Xs):
+                accumulate(X, y[r], w0[r], prep.block[r], n_blocks, out=acc)
+            if len(Xs) == 2:  # the regressors' own noise, which the fit would otherwise count as signal
+                regressor_noise(Xs[1] - Xs[0], 0.5 * (w0[parts[0]] + w0[parts[1]]), prep.block[sl], n_blocks,
+                                out=noise)
+        return (*acc, noise)
+
+    # contiguous runs of chunks side by side (numpy releases the GIL); a block lies in one run, or at a
+    # run's edge, so its sums are the same as from one pass
+    starts = np.arange(0, idx.size, CHUNK)
+    runs = [r for r in np.array_split(starts, min(workers(), max(len(starts), 1))) if len(r)]
+    done = thread_map(chunks, runs) or [chunks([])]
+    total = [reduce(np.add, [x[k] for x in done]) for k in range(5)]
+    acc, noise = tuple(total[:4]), total[4]
     out = []
     for rows in row_sets:
         G, N = row_sums(acc[0], rows), row_sums(noise, rows)
@@ -244,10 +258,11 @@ def refine_delay(prep: Prepared, vehicle, named: list[str], theta: np.ndarray, c
     return d, train_loss(d)[1]
 
 
-def exact_delay_term(prep: Prepared, vehicle, d: float) -> np.ndarray:
-    """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6)."""
+def exact_delay_term(prep: Prepared, vehicle, d: float, rows: np.ndarray | None = None) -> np.ndarray:
+    """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6; or
+    ``rows``)."""
     u2f, u2t = prep.own_u2 or (prep.s.u2_force, prep.s.u2_torque)
-    return delay_mod.exact_term(prep.t, prep.flight, u2f, u2t, vehicle.rotors.matrix, d)
+    return delay_mod.exact_term(prep.t, prep.flight, u2f, u2t, vehicle.rotors.matrix, d, rows)
 
 
 def at_delay(prep: Prepared, vehicle, d: float, column: str = "secant", shift: float | None = None) -> Signals:
@@ -274,9 +289,9 @@ def first_delay(prep: Prepared, vehicle, cfg: DiagnoseConfig) -> float:
     Other effects are slow next to the delay's signature (the rotor map's rate), so they barely move it.
     """
     w = weights(prep.sd)
-    tr = prep.train & np.isfinite(prep.y).all(axis=1)
+    tr = np.flatnonzero(prep.train & np.isfinite(prep.y).all(axis=1))
     y, w = prep.y[tr], w[tr]
-    return delay_mod.estimate(lambda d: float(np.sum(w * (y - exact_delay_term(prep, vehicle, d)[tr]) ** 2)),
+    return delay_mod.estimate(lambda d: float(np.sum(w * (y - exact_delay_term(prep, vehicle, d, tr)) ** 2)),
                               cfg.delay_max_s, 0.0)
 
 

@@ -33,25 +33,33 @@ def runs(t: np.ndarray, flight: np.ndarray) -> list[tuple[int, int]]:
     return list(zip(starts, list(starts[1:]) + [len(t)]))
 
 
-def shift(t, flight, x: np.ndarray, d: float) -> np.ndarray:
-    """``x(t - d)`` column by column, by linear interpolation within each run (held at a run's start)."""
+def shift(t, flight, x: np.ndarray, d: float, rows: np.ndarray | None = None) -> np.ndarray:
+    """``x(t - d)`` column by column, by linear interpolation within each run (held at a run's start);
+    ``rows`` (sorted indices): only there (the data of the whole run still interpolated)."""
+    if rows is None:
+        rows = np.arange(len(t))
     if d == 0:
-        return x.copy()
-    out = np.empty_like(x)
+        return x[rows].copy()
+    out = np.empty((len(rows), x.shape[1]))
     for a, b in runs(t, flight):
-        tt = t[a:b]
+        i, j = np.searchsorted(rows, a), np.searchsorted(rows, b)
+        if i == j:
+            continue
+        tt, at = t[a:b], t[rows[i:j]] - d
         for k in range(x.shape[1]):
-            out[a:b, k] = np.interp(tt - d, tt, x[a:b, k])
+            out[i:j, k] = np.interp(at, tt, x[a:b, k])
     return out
 
 
-def exact_term(t, flight, u2f, u2t, B, d: float) -> np.ndarray:
-    """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6)."""
-    term = np.zeros((len(t), 6))
+def exact_term(t, flight, u2f, u2t, B, d: float, rows: np.ndarray | None = None) -> np.ndarray:
+    """Residual of a rotor map acting ``d`` late: ``W(u(t - d)) - W(u(t))`` on f_z and τ (N, 6), or on
+    ``rows`` only.  The map is linear in u², so the wrench is shifted (4 columns, not 8 squared speeds)."""
+    n = len(t) if rows is None else len(rows)
+    term = np.zeros((n, 6))
     if d == 0:
         return term
-    term[:, 2] = (shift(t, flight, u2f, d) - u2f) @ B[0]
-    term[:, 3:] = (shift(t, flight, u2t, d) - u2t) @ B[1:].T
+    W = np.column_stack([u2f @ B[0], u2t @ B[1:].T])  # f_z, τx, τy, τz
+    term[:, 2:] = shift(t, flight, W, d, rows) - (W if rows is None else W[rows])
     return term
 
 

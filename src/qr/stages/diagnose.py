@@ -135,19 +135,24 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
         hybrid = ext.with_changes(torque_remainder=trm.block(
             W, f"learned on the training part of {', '.join(Path(f).name for f in flights)} (ridge "
                f"{dcfg.torque_remainder_ridge:g}): not a physical effect"))
-    say("rolling out the nominal and the extended model on the held-out part")
-    ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
-    res["rollout"] = rollout_all(states, pieces, vehicle, res["effects"], res["prep"], ecfg.horizon,
-                                 ecfg.max_input_gap, 0.0, hybrid)
-    prep = res["prep"]
-    y_test = prep.y[prep.test]
-    res["rollout"]["explained"] = summed_r2(prep, y_test, y_test - res["pred_test"], ecfg.horizon)
+    from concurrent.futures import ThreadPoolExecutor
+
     from ..diagnose.accelerometer import accelerometer_check
 
-    res["accelerometer_check"] = accelerometer_check(states, pieces, vehicle, dcfg.trim_s)
-
-    say("checking for structure beyond the catalog")
-    res["remainder"] = remainder(res, vehicle, dcfg)
+    # the check for structure beyond the catalog (numpy) runs beside the rollout (compiled, the GIL
+    # released): neither reads what the other writes
+    with ThreadPoolExecutor(1) as pool:
+        checked = pool.submit(remainder, res, vehicle, dcfg)
+        say("rolling out the nominal and the extended model on the held-out part")
+        ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
+        res["rollout"] = rollout_all(states, pieces, vehicle, res["effects"], res["prep"], ecfg.horizon,
+                                     ecfg.max_input_gap, 0.0, hybrid)
+        prep = res["prep"]
+        y_test = prep.y[prep.test]
+        res["rollout"]["explained"] = summed_r2(prep, y_test, y_test - res["pred_test"], ecfg.horizon)
+        res["accelerometer_check"] = accelerometer_check(states, pieces, vehicle, dcfg.trim_s)
+        say("checking for structure beyond the catalog")
+        res["remainder"] = checked.result()
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
     doc["accelerometer_check"] = res["accelerometer_check"]
