@@ -25,6 +25,7 @@ import math
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ..parallel import thread_map
 from . import attitude_eskf, motor_kf, position_kf
 from .nis import Innovations
 
@@ -77,13 +78,18 @@ def tune(kind: str, t, meas, keep, min_corner_hz=0.05, grid=13, rounds=2, speed_
     for _ in range(rounds):
         cache = {}
 
-        def neg(logf, r0=r0, cache=cache):
+        def run(logf, r0=r0):
             lam = (2 * math.pi * math.exp(logf)) ** (2 * m)
             ll, c = _profile(_run(kind, t, meas, lam * r0, r0, speed_scale, reset_deg), keep)
-            cache[logf] = (ll, c, lam)
-            return -ll
+            return ll, c, lam
+
+        def neg(logf, cache=cache):
+            if logf not in cache:
+                cache[logf] = run(logf)
+            return -cache[logf][0]
 
         xs = np.linspace(math.log(f_lo), math.log(f_hi), grid)
+        cache.update(zip(xs, thread_map(run, xs)))  # the grid's filters side by side, kept in grid order
         vals = [neg(x) for x in xs]
         i = int(np.argmin(vals))
         lo, hi = xs[max(i - 1, 0)], xs[min(i + 1, grid - 1)]
