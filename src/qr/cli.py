@@ -167,7 +167,8 @@ def _cmd_ingest(a):
     df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
     for kind, o in df.attrs["time_offsets"].items():
-        print(f"  {kind} stamped {1000 * o['offset_s']:+.1f} ms late against the motion capture ({o['against']}: "
+        when = "late" if o["offset_s"] >= 0 else "early"
+        print(f"  {kind} stamped {1000 * abs(o['offset_s']):.1f} ms {when} against the motion capture ({o['against']}: "
               f"correlation {o['correlation']:.2f}){'; moved' if a.align else ''}")
 
 
