@@ -3,12 +3,15 @@
 The compiled kernels release the GIL (``nogil``), so threads run them in parallel without copying
 the data to other processes.  One knob for all of qr's parallelism: numba's thread count
 (``NUMBA_NUM_THREADS``, default the cores), which the rollout's ``prange`` uses too.  Results do
-not depend on it: every task computes the same numbers alone or beside others.
+not depend on it: every task computes the same numbers alone or beside others.  BLAS keeps one
+thread while qr runs its own (:func:`blas_one_thread`): two pools on the same cores fight (the
+1-hour diagnosis took 62 s with OpenBLAS's threads, 57 s without).
 """
 
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Callable, Iterable, TypeVar
 
 T = TypeVar("T")
@@ -29,3 +32,12 @@ def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
         return [fn(x) for x in items]
     with ThreadPoolExecutor(n) as ex:
         return list(ex.map(fn, items))
+
+
+@contextmanager
+def blas_one_thread():
+    """numpy's BLAS (OpenBLAS, MKL) on one thread inside the block, whatever it was before."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield

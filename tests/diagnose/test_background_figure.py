@@ -73,7 +73,6 @@ def test_a_diagnosis_stopped_after_the_figure_started_leaves_no_child_and_no_fil
                                                                                  monkeypatch):
     from conftest import VEHICLES
     from qr.effects import parse_effect_spec
-    from qr.identification import selection
     from qr.sim.synth import SynthConfig, write_synth
     from qr.stages.diagnose import run_diagnosis
     from qr.vehicle import load_vehicle
@@ -87,15 +86,14 @@ def test_a_diagnosis_stopped_after_the_figure_started_leaves_no_child_and_no_fil
         real(self, draw)
         started.append(self)
 
-    def stop(*a, **k):
-        raise KeyboardInterrupt
+    def stop_at_selection(msg):  # Ctrl-C as the selection starts: the figure is being drawn
+        if msg == "selection":
+            raise KeyboardInterrupt
 
     monkeypatch.setattr(BackgroundFigure, "__init__", spy)
-    monkeypatch.setattr(selection, "select", stop)
-    monkeypatch.setattr("qr.diagnose.core.select", stop)
     with pytest.raises(KeyboardInterrupt):
         run_diagnosis([tmp_path / "f" / "flight.csv"], tmp_path / "f" / "vehicle.yaml", tmp_path / "out",
-                      track=False, log=lambda m: None)
-    assert len(started) == 1  # the figure had started when the selection stopped
+                      track=False, log=stop_at_selection)
+    assert len(started) == 1  # the figure had started when the run stopped
     assert list(private_tmp.iterdir()) == [] and _no_children()
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

@@ -79,3 +79,20 @@ def test_tuning_alone_gives_the_values_the_tuned_filter_reports(flight):
     _, report = estimate(flight, None, cfg)
     assert tuned_noise(flight, None, cfg) == report["tuning"]
     assert tuned_noise(flight, None, to_dict(compose([]))["filter"]) is None  # the thesis filters do not tune
+
+
+def test_blas_keeps_one_thread_inside_a_diagnosis_and_its_own_count_after():
+    """qr's threads use the cores; numpy's BLAS, which would start its own, is held to one meanwhile."""
+    from threadpoolctl import threadpool_info
+
+    from qr.parallel import blas_one_thread
+
+    def blas_threads():
+        return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+    np.ones((64, 64)) @ np.ones((64, 64))  # BLAS loaded
+    before = blas_threads()
+    assert before
+    with blas_one_thread():
+        assert blas_threads() == [1] * len(before)
+    assert blas_threads() == before

@@ -300,10 +300,13 @@ def diagnose(states_list: list[pd.DataFrame], measured_list: list[pd.DataFrame],
     """``pairs``: per flight the (even, odd) half-sample state tables for cross-fitting (recommended);
     ``prepared(prep)``: called with the nominal residuals as soon as they exist."""
     step = progress or (lambda msg: None)
-    prep = prepare(states_list, vehicle, cfg)
-    if prepared is not None:
+    if pairs:  # the labels of the full flight and of the cross-fitting halves, side by side
+        prep, fitprep = thread_map(lambda f: f(), (lambda: prepare(states_list, vehicle, cfg),
+                                                   lambda: prepare_cross(pairs, vehicle, cfg)))
+    else:
+        prep = fitprep = prepare(states_list, vehicle, cfg)
+    if prepared is not None:  # after the threads: a fork beside a running thread could inherit its locks
         prepared(prep)
-    fitprep = prepare_cross(pairs, vehicle, cfg) if pairs else prep
     noise_scale = calibrate(fitprep, prep) if pairs else None
     candidates = [e for e in (cfg.candidates or list(CATALOG)) if e not in cfg.exclude]
     d0 = None

@@ -47,10 +47,13 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
     ``reports`` / ``estimates``: per flight, the filter stage's report and cross-fit file; a segment
     found there with the same filter settings is read, not filtered again (the same numbers)."""
+    from ..parallel import blas_one_thread
+
     background = []  # figures drawn by a child process: stopped and removed however the run ends
     try:
-        return _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures, force,
-                              estimates, background)
+        with blas_one_thread():  # qr's own threads use the cores
+            return _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures,
+                                  force, estimates, background)
     finally:
         for b in background:
             b.close()
