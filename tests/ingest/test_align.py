@@ -139,3 +139,10 @@ def test_measured_rotor_offsets_agree_across_flights_and_with_the_motor_response
     assert np.abs(rpm_off - np.median(rpm_off)).max() < 0.005
     assert response.max() < -0.02  # the PWM leads the rpm by the motors' response (tens of ms)
     assert pwm_off - rpm_off == pytest.approx(response, abs=0.005)
+
+
+def test_a_log_shorter_than_the_lag_window_gets_no_offset_and_no_error(flight):
+    """0.8 s of data against a ±0.5 s lag window: nothing to compare, so nothing is said (not a traceback)."""
+    short = flight[flight["t"] < flight["t"].iloc[0] + 0.8].reset_index(drop=True)
+    assert align.offsets(short, load_vehicle(HB)) == {}
+    assert set(align.offsets(flight.iloc[:1000], load_vehicle(HB))) == {"gyro", "rotors"}  # 10 s: both

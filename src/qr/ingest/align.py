@@ -54,7 +54,8 @@ def _on_grid(t, grid, y):
 
 
 def _lag(t, stream, reference, max_lag_s, confounders=None, smooth_s=SMOOTH_S, max_samples=MAX_SAMPLES):
-    """(τ, peak correlation): ``stream(t + τ)`` best matches ``reference(t)`` (both (N, k), summed over k).
+    """(τ, peak correlation): ``stream(t + τ)`` best matches ``reference(t)`` (both (N, k), summed over k);
+    None for a log too short for the lag window.
 
     ``confounders`` (N, k, p): signals fitted beside the stream in column j of the reference at every
     lag (a constant always is), so the correlation is a partial one."""
@@ -76,6 +77,8 @@ def _lag(t, stream, reference, max_lag_s, confounders=None, smooth_s=SMOOTH_S, m
     if m - 2 * n > max_samples:  # a constant offset: the middle of a long log says it
         mid = slice((m - max_samples) // 2 - n, (m + max_samples) // 2 + n)
         a, b, z, m = a[mid], b[mid], z[mid], max_samples + 2 * n
+    if m - 2 * n < max(50, 5 * (p + 1)):  # too short a log for this lag window: nothing to say
+        return None
     inner = slice(n, m - n)  # the reference's samples every lag reaches
     bases, y = [], np.empty((m - 2 * n, k))
     for j in range(k):
@@ -123,7 +126,10 @@ def _rotor_lag(flight, t, q, w, vehicle, max_lag_s):
     thrust = wrench[:, 0]
     confounders = np.stack([np.column_stack([w[:, 0], v_b[:, 1], thrust]),
                             np.column_stack([w[:, 1], v_b[:, 0], thrust])], axis=1)
-    tau, c = _lag(t, commanded, needed, max_lag_s, confounders)
+    found = _lag(t, commanded, needed, max_lag_s, confounders)
+    if found is None:
+        return None
+    tau, c = found
     return {"offset_s": tau, "correlation": c,
             "against": "roll/pitch rotor torque vs the mocap attitude's angular acceleration"}
 
@@ -140,8 +146,9 @@ def offsets(flight: pd.DataFrame, vehicle=None, max_lag_s: float = MAX_LAG_S) ->
     w = _body_rate(t, q)
     found = {}
     if all(col in flight for col in GYRO) and np.all(np.isfinite(flight[GYRO].to_numpy(float)), axis=1).sum() > 10:
-        tau, c = _lag(t, flight[GYRO].to_numpy(float), w, max_lag_s)
-        found["gyro"] = {"offset_s": tau, "correlation": c, "against": "gyro vs the mocap attitude's rate"}
+        lag = _lag(t, flight[GYRO].to_numpy(float), w, max_lag_s)
+        if lag is not None:
+            found["gyro"] = {"offset_s": lag[0], "correlation": lag[1], "against": "gyro vs the mocap attitude's rate"}
     if vehicle is not None and all(col in flight for col in ROTORS):
         rotors = _rotor_lag(flight, t, q, w, vehicle, max_lag_s)
         if rotors is not None:
