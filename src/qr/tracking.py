@@ -317,10 +317,13 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
         all_tags["mlflow.parentRunId"] = parent.id
     all_tags.update(tags or {})
     with procs.sigterm_raises():
-        r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
-        handle = Run(client, r.info.run_id)
-        status = "FAILED"
+        handle, status = None, "FAILED"
         try:
+            # a signal while the run is being created waits until it exists, so it can be ended KILLED
+            # (a cancel that landed inside create_run left the run RUNNING)
+            with procs.signals_held():
+                r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
+                handle = Run(client, r.info.run_id)
             if config:
                 handle.params(config)
             yield handle
@@ -330,8 +333,9 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
                 status = "KILLED"
             raise
         finally:
-            with procs.signals_held():
-                _retry(client.set_terminated, handle.id, status)
+            if handle is not None:
+                with procs.signals_held():
+                    _retry(client.set_terminated, handle.id, status)
 
 
 class _NullRun(Run):

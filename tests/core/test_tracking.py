@@ -64,3 +64,31 @@ def test_two_processes_logging_at_once_lose_nothing(tmp_path, monkeypatch):
     names = sorted(r.info.run_name for r in runs)
     assert names == sorted(f"{t}-{i}" for t in "AB" for i in range(8))  # none lost, none duplicated
     assert all(r.info.status == "FINISHED" and r.data.metrics["value"] == float(r.data.params["i"]) for r in runs)
+
+
+def test_a_cancel_that_lands_while_the_run_is_created_ends_it_killed(tmp_path, monkeypatch):
+    """SIGTERM inside MLflow's create_run (a cluster cancel right as the job opens its run): the signal
+    waits until the run exists, then stops the job, and the run ends KILLED, not RUNNING for ever."""
+    import os
+    import signal
+
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.procs import Terminated
+
+    client = tracking._client()
+    real = type(client).create_run
+
+    def cancelled_meanwhile(self, *args, **kwargs):
+        made = real(self, *args, **kwargs)  # the run is in the store ...
+        os.kill(os.getpid(), signal.SIGTERM)  # ... and the cancel arrives before create_run returns
+        return made
+
+    monkeypatch.setattr(type(client), "create_run", cancelled_meanwhile)
+    reached = []
+    with pytest.raises(Terminated):
+        with tracking.run("unit", "cancelled", {}):
+            reached.append(True)
+    assert not reached  # the job stopped before its body ran
+    runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
+    assert runs["cancelled"].info.status == "KILLED"
