@@ -28,6 +28,7 @@ import os
 import random
 import subprocess
 import time
+import uuid
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -316,11 +317,13 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
     if parent is not None and not isinstance(parent, _NullRun):
         all_tags["mlflow.parentRunId"] = parent.id
     all_tags.update(tags or {})
+    # a cancel that lands inside create_run (the run stored, its id not yet returned) must still end the
+    # run: the token finds it (masking the signal is not enough: another thread of the process takes it)
+    token = uuid.uuid4().hex
+    all_tags["qr.run_token"] = token
     with procs.sigterm_raises():
         handle, status = None, "FAILED"
         try:
-            # a signal while the run is being created waits until it exists, so it can be ended KILLED
-            # (a cancel that landed inside create_run left the run RUNNING)
             with procs.signals_held():
                 r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
                 handle = Run(client, r.info.run_id)
@@ -333,9 +336,11 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
                 status = "KILLED"
             raise
         finally:
-            if handle is not None:
-                with procs.signals_held():
-                    _retry(client.set_terminated, handle.id, status)
+            with procs.signals_held():
+                ids = [handle.id] if handle is not None else [
+                    x.info.run_id for x in client.search_runs([exp], filter_string=f"tags.`qr.run_token` = '{token}'")]
+                for run_id in ids:
+                    _retry(client.set_terminated, run_id, status)
 
 
 class _NullRun(Run):

@@ -81,7 +81,7 @@ def _pose(log: _Log) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
         raise log.missing("pose (vehicle_mocap_odometry, vehicle_visual_odometry, or vehicle_local_position "
                           "with vehicle_attitude)", "log the position and attitude topics (SDLOG_PROFILE)")
     t, ta = _stamps(lp), _stamps(att)
-    qa = np.column_stack([att[f] for f in q_fields])
+    qa = np.column_stack([att[f] for f in q_fields]).astype(float)  # float32 in the log: a corrupt one overflows
     ok = np.all(np.isfinite(qa), axis=1) & (np.linalg.norm(qa, axis=1) > 0.5)
     ta, qa = ta[ok], qa[ok]
     order = np.unique(ta, return_index=True)[1]
