@@ -324,9 +324,8 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
     with procs.sigterm_raises():
         handle, status = None, "FAILED"
         try:
-            with procs.signals_held():
-                r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
-                handle = Run(client, r.info.run_id)
+            r = _retry(client.create_run, exp, run_name=name, tags={k: str(v) for k, v in all_tags.items()})
+            handle = Run(client, r.info.run_id)
             if config:
                 handle.params(config)
             yield handle
