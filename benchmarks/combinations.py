@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/combinations.py              # 44 scenarios, 60 s at 100 Hz each (~10 min)
     .venv/bin/python benchmarks/combinations.py --n 8 --duration 40
     .venv/bin/python benchmarks/combinations.py --only 3,17  # re-run some scenarios, verbose
+    .venv/bin/python benchmarks/combinations.py --kernels SkylakeX,Haswell,Prescott  # once per OpenBLAS kernel
 
 Scenarios (qr.sim.scenarios.combinations): every pair of mechanism families once (every third
 with a third effect), then single effects; parameters drawn in the ranges stated there; vehicle
@@ -16,10 +17,18 @@ deviation from 1).  Where the data cannot tell two effects apart (thrust_gain an
 without torque evidence), the spec asks to name one and report the other in `confounded_with`:
 such a named set counts as exact, and such a name as not false, when swapping named effects for
 the effects they are reported confounded with gives the true set; the strict counts are printed too.
+
+With ``--kernels``, the whole benchmark runs once per OpenBLAS kernel (``OPENBLAS_CORETYPE``, each in its
+own process: the kernel is chosen when the library loads) and the share of scenarios whose named set
+differs between kernels is printed (goal 0 %), with the largest relative difference of a parameter.
+A kernel the processor cannot run (SkylakeX without AVX-512) falls back silently inside OpenBLAS: the
+line says which kernel each process actually used.
 """
 
 import argparse
+import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -66,10 +75,14 @@ def main():
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=100.0)
     ap.add_argument("--only", default="", help="comma-separated scenario indices (verbose)")
+    ap.add_argument("--kernels", default="", help="comma-separated OpenBLAS kernels: one run each, compared")
+    ap.add_argument("--json", default="", help="write each scenario's named set and parameters here")
     a = ap.parse_args()
+    if a.kernels:
+        return across_kernels(a)
     scenarios = combinations(a.n, a.seed)
     idx = [int(i) for i in a.only.split(",")] if a.only else range(len(scenarios))
-    exact, false_name, strict_exact, strict_false, errors, rows = 0, 0, 0, 0, {}, []
+    exact, false_name, strict_exact, strict_false, errors, rows, decided = 0, 0, 0, 0, {}, [], {}
     t_all = time.perf_counter()
     with tempfile.TemporaryDirectory() as d:
         for i in idx:
@@ -101,6 +114,12 @@ def main():
                   f"worst rel err {worst:6.1%}  ({time.perf_counter() - t0:.0f} s)" + (f"  [{conf}]" if conf else ""),
                   flush=True)
             rows.append((i, ok, extra))
+            decided[i] = {"named": named, "parameters": {e["name"]: e["parameters"] for e in doc["effects"]}}
+    if a.json:
+        from threadpoolctl import threadpool_info
+
+        kernel = [x.get("architecture") for x in threadpool_info() if x.get("internal_api") == "openblas"]
+        Path(a.json).write_text(json.dumps({"kernel": kernel, "scenarios": decided}))
     n = len(rows)
     rel = np.array([v[0] for v in errors.values()])
     z = np.array([v[1] for v in errors.values()])
@@ -112,6 +131,36 @@ def main():
     if rel.size:
         print(f"parameter errors of named true effects: median {np.median(rel):.1%}, 90th percentile "
               f"{np.quantile(rel, 0.9):.1%}; within 2 s.e.: {np.mean(z <= 2):.0%} of {rel.size}")
+    return 0
+
+
+def across_kernels(a) -> int:
+    """The benchmark once per kernel (a process each), then the share of kernel-dependent named sets."""
+    runs = {}
+    with tempfile.TemporaryDirectory() as d:
+        for k in a.kernels.split(","):
+            out = Path(d) / f"{k}.json"
+            args = [sys.executable, __file__, "--n", str(a.n), "--seed", str(a.seed), "--duration", str(a.duration),
+                    "--rate", str(a.rate), "--json", str(out)] + (["--only", a.only] if a.only else [])
+            print(f"== OPENBLAS_CORETYPE={k}", flush=True)
+            subprocess.run(args, env={**os.environ, "OPENBLAS_CORETYPE": k}, check=True)
+            runs[k] = json.loads(out.read_text())
+    kernels = list(runs)
+    first = runs[kernels[0]]["scenarios"]
+    differ, worst = [], 0.0
+    for i, ref in first.items():
+        for k in kernels[1:]:
+            other = runs[k]["scenarios"].get(i)
+            if other is None or other["named"] != ref["named"]:
+                differ.append(i)
+                continue
+            for e, ps in ref["parameters"].items():
+                for p, v in ps.items():
+                    worst = max(worst, abs(other["parameters"][e][p] - v) / max(abs(v), 1e-300))
+    used = ", ".join(f"{k} -> {runs[k]['kernel']}" for k in kernels)
+    print(f"\nkernels ({used}): named set differs between kernels in {len(set(differ))}/{len(first)} = "
+          f"{len(set(differ)) / max(len(first), 1):.0%} of the scenarios (goal 0 %){': ' + ', '.join(sorted(set(differ))) if differ else ''}; "
+          f"largest relative difference of a parameter otherwise {worst:.1e}")
     return 0
 
 

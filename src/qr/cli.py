@@ -75,6 +75,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--align", action="store_true",
                    help="move the gyro and the rotor stream by their time offsets to the motion capture (always "
                         "estimated and printed; the rotor offset includes the motors' response)")
+    s.add_argument("--skip-check", action="append", default=[], metavar="CHECK",
+                   help="a convention check to skip, where you know the log is right (repeatable): thrust_axis, "
+                        "gyro, rotor_layout (docs/cli.md)")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -164,12 +167,16 @@ def _cmd_ingest(a):
 
     from .ingest.rosbag import parse_topics
 
-    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align)
+    df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align,
+                     skip_checks=a.skip_check)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
     for kind, o in df.attrs["time_offsets"].items():
         when = "late" if o["offset_s"] >= 0 else "early"
+        halves = " and ".join(f"{1000 * h:+.1f}" if h is not None else "none" for h in o["halves"])
+        act = ("moved" if a.align else "--align would move it") if o["confident"] else \
+            "not determined: the log's halves disagree, leave it" + (" (not moved)" if a.align else "")
         print(f"  {kind} stamped {1000 * abs(o['offset_s']):.1f} ms {when} against the motion capture ({o['against']}: "
-              f"correlation {o['correlation']:.2f}){'; moved' if a.align else ''}")
+              f"correlation {o['correlation']:.2f}; its halves alone: {halves} ms): {act}")
 
 
 def _check_synth_arguments(a):

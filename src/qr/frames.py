@@ -76,8 +76,9 @@ def from_ned_frd(p_ned: np.ndarray, q_ned_frd: np.ndarray) -> tuple[np.ndarray, 
     """Positions (N, 3) and attitudes (N, 4, FRD body -> NED world) in qr's frames (ENU world, FLU body).
 
     ``R_enu_flu = T R_ned_frd F`` with ``T`` = :data:`NED_TO_ENU`, ``F`` = :data:`FRD_TO_FLU`; rows with NaN
-    stay NaN, the quaternions are made continuous."""
-    p = np.asarray(p_ned, dtype=float) @ NED_TO_ENU.T
+    stay NaN, the quaternions are made continuous; a missing position component (NaN) stays missing, the
+    others are kept (the swap takes components, it does not mix them)."""
+    p = np.asarray(p_ned, dtype=float)[:, [1, 0, 2]] * np.array([1.0, 1.0, -1.0])  # = p @ NED_TO_ENU.T
     q_in = np.asarray(q_ned_frd, dtype=float)
     q = np.full_like(q_in, np.nan)
     ok = np.all(np.isfinite(q_in), axis=1)

@@ -43,6 +43,19 @@ def cross(a, b):
 
 
 @nb.njit(cache=True)
+def matvec(A, x):
+    """``A @ x`` summed in index order: numba's ``@`` calls BLAS, whose kernels (chosen per processor)
+    round differently, and a simulated flight must be the same file on every machine."""
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        acc = 0.0
+        for j in range(A.shape[1]):
+            acc += A[i, j] * x[j]
+        out[i] = acc
+    return out
+
+
+@nb.njit(cache=True)
 def qmul_s(a0, a1, a2, a3, b0, b1, b2, b3):
     """``a ⊗ b`` on scalars (no array: for the filters' inner loops)."""
     return (a0 * b0 - a1 * b1 - a2 * b2 - a3 * b3,

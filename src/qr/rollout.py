@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from .allowed import check_fields, check_known, setting
+from .conventions import CHECKS
 from .frames_compiled import quat_angle
 from .sim.plant import N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
@@ -222,6 +223,8 @@ class EvaluateConfig:
     # windows whose rotor speeds miss more than this many samples in a row are skipped
     max_input_gap: int = setting(2, "integer", ge=0)
     trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (as qr diagnose's)
+    # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
+    skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

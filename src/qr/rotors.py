@@ -52,6 +52,26 @@ class RotorMap:
         x, y = self.positions[:, 0], self.positions[:, 1]
         return np.vstack([ct * np.ones(self.n), ct * y, -ct * x, cq * self.yaw_signs])
 
+    @property
+    def inverse(self) -> np.ndarray:
+        """``B⁻¹`` by Gauss-Jordan elimination in a fixed order (partial pivoting): LAPACK's inverse rounds
+        differently under each BLAS kernel, and the synthetic flights' controller flies with this one."""
+        n = self.n
+        a = [list(map(float, row)) + [1.0 if i == j else 0.0 for j in range(n)]
+             for i, row in enumerate(self.matrix)]
+        for c in range(n):
+            p = max(range(c, n), key=lambda r: abs(a[r][c]))
+            if a[p][c] == 0.0:
+                raise np.linalg.LinAlgError("the rotor map is singular")
+            a[c], a[p] = a[p], a[c]
+            piv = a[c][c]
+            a[c] = [x / piv for x in a[c]]
+            for r in range(n):
+                if r != c and a[r][c] != 0.0:
+                    f = a[r][c]
+                    a[r] = [x - f * y for x, y in zip(a[r], a[c])]
+        return np.array([row[n:] for row in a])
+
     def wrench(self, u: np.ndarray) -> np.ndarray:
         """``[T, Γx, Γy, Γz]`` (N, 4) from rotor speeds (N, n_rotors)."""
         u = np.asarray(u, dtype=float)

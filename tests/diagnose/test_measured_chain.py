@@ -7,12 +7,14 @@ from a cable must be named, as a force along body or world z (mass_error, body_f
 wind_force: on these flights the data do not separate them firmly, see the README), worth 2-7 g of
 weight: the weighed 4.7 g, give or take the first set's thrust offset, which is confounded with its
 mass (about +1.7 g of mass on the 37 g vehicle, README).  Exploratory measured results otherwise; this
-is the part of them the project stands behind.
+is the part of them the project stands behind.  Both diagnoses are repeated on another machine's
+arithmetic (tests/decisions.py): the same names, the same parameters.
 """
 
 import pytest
 
 from conftest import DATA, VEHICLES
+from decisions import assert_same_decisions, diagnose_elsewhere
 from qr.stages.diagnose import run_diagnosis
 from qr.stages.diagnose import carry_over
 from qr.stages.ingest import ingest
@@ -36,10 +38,14 @@ def test_the_payload_is_named_after_the_no_payload_model_is_carried_over(tmp_pat
             ingest(DATA / folder / "data" / f, load_vehicle(vehicle), out)
     first = run_diagnosis(flights["b"], brushless, tmp_path / "first", OVERRIDES, log=lambda m: None, figures=False)
     assert "blade_flapping" in [e["name"] for e in first["effects"]]  # on every brushless flight alone, too
+    assert_same_decisions(first, diagnose_elsewhere(flights["b"], brushless, tmp_path / "first_there", OVERRIDES))
     carry_over(tmp_path / "first" / "extended_vehicle.yaml", payload, tmp_path / "carried.yaml")
-    doc = run_diagnosis(flights["p"], tmp_path / "carried.yaml", tmp_path / "payload",
-                        OVERRIDES + ["diagnose.exclude=[thrust_gain,motor_imbalance]"], log=lambda m: None,
+    second = OVERRIDES + ["diagnose.exclude=[thrust_gain,motor_imbalance]"]
+    doc = run_diagnosis(flights["p"], tmp_path / "carried.yaml", tmp_path / "payload", second, log=lambda m: None,
                         figures=False)
+    carry_over(tmp_path / "first_there" / "extended_vehicle.yaml", payload, tmp_path / "carried_there.yaml")
+    assert_same_decisions(doc, diagnose_elsewhere(flights["p"], tmp_path / "carried_there.yaml",
+                                                  tmp_path / "payload_there", second, case=1))
     named = {e["name"]: e["parameters"] for e in doc["effects"]}
     z_force = {"mass_error": lambda p: p["dm"] * G, "body_force_bias": lambda p: -p["bz"],
                "wind_force": lambda p: -p["fz"]}

@@ -112,10 +112,11 @@ def test_a_flight_logged_as_commands_diagnoses_as_from_its_rotor_speeds_also_fro
 def test_the_crazyflie_diagnosed_from_its_pwm_tells_the_story_of_its_rpm(tmp_path, capsys):
     """The brushless logs carry both the RPM deck's speeds and the PWM commands. Six flights diagnosed
     each way (the source's PWM -> thrust fit, conf/vehicle/crazyflie21_brushless_pwm.yaml) name the same
-    rotor drag and roll-inertia error, to 15 %, and both name blade flapping (5.3 against 6.8e-4 N m s/m
-    when written); the commands add what the speeds do not see: the motors' response, an actuator delay
-    of tens of milliseconds. (How the thrust offset is split, C_T against a constant force, differs: the
-    two calibrations differ by 3 % at hover.)"""
+    rotor drag, to 15 %, judge a roll-inertia error alike (the slow torque balance proposes one; the
+    held-out part supports it in both or in neither), and both name blade flapping (5.3 against 6.8e-4
+    N m s/m when written); the commands add what the speeds do not see: the motors' response, an actuator
+    delay of tens of milliseconds. (How the thrust offset is split, C_T against a constant force, differs:
+    the two calibrations differ by 3 % at hover.)"""
     flights = ["eckart00", "eckart01", "eckart02", "eckart03", "eckart04", "eckart06"]
     docs = {}
     for v in ("crazyflie21_brushless", "crazyflie21_brushless_pwm"):
@@ -130,8 +131,10 @@ def test_the_crazyflie_diagnosed_from_its_pwm_tells_the_story_of_its_rpm(tmp_pat
         doc = json.loads((tmp_path / f"d_{v}" / "diagnosis.json").read_text())
         docs[v] = {e["name"]: e["parameters"] for e in doc["effects"]}
     rpm, pwm = docs["crazyflie21_brushless"], docs["crazyflie21_brushless_pwm"]
-    for name, key in (("rotor_drag", "k"), ("inertia_error", "dJxx")):
-        assert pwm[name][key] == pytest.approx(rpm[name][key], rel=0.15), (name, rpm, pwm)
+    assert pwm["rotor_drag"]["k"] == pytest.approx(rpm["rotor_drag"]["k"], rel=0.15), (rpm, pwm)
+    assert ("inertia_error" in rpm) == ("inertia_error" in pwm), (rpm, pwm)
+    if "inertia_error" in rpm:
+        assert pwm["inertia_error"]["dJxx"] == pytest.approx(rpm["inertia_error"]["dJxx"], rel=0.15)
     assert "blade_flapping" in rpm and "blade_flapping" in pwm
     assert "actuator_delay" not in rpm
     assert 0.02 <= pwm["actuator_delay"]["delay_s"] <= 0.08

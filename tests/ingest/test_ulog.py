@@ -60,16 +60,18 @@ def _export(tmp_path, name, topics):
 @needs_logs
 @pytest.mark.parametrize("name, pwm", [("sample.ulg", (1075, 1950)), ("sample_log_small.ulg", (950, 2000))])
 def test_a_real_px4_log_reads_in_qr_frames_and_units(tmp_path, name, pwm):
-    df = ulog.read(PX4 / name)
+    df = ulog.read(PX4 / name, check=False)  # (neither log holds a flight: see the tests below)
     ref = _export(tmp_path, name, ["vehicle_local_position", "actuator_outputs", "sensor_combined"])
     lp, out, imu = ref["vehicle_local_position"], ref["actuator_outputs"], ref["sensor_combined"]
     stamps = lp["timestamp"].to_numpy()
     assert len(df) == len(np.unique(stamps))
     assert df["t"].iloc[0] == 0.0 and np.all(np.diff(df["t"]) > 0)
     assert df["t"].to_numpy() == pytest.approx((stamps - stamps[0]) * 1e-6)
-    assert df["px"].to_numpy() == pytest.approx(lp["y"].to_numpy())  # ENU x = NED east
-    assert df["py"].to_numpy() == pytest.approx(lp["x"].to_numpy())
-    assert df["pz"].to_numpy() == pytest.approx(-lp["z"].to_numpy())
+    # a position PX4 marks invalid (no fix: xy_valid = 0, as on both logs) is a dropout, not 0 m
+    xy_ok, z_ok = lp["xy_valid"].to_numpy() == 1, lp["z_valid"].to_numpy() == 1
+    assert df["px"].to_numpy() == pytest.approx(np.where(xy_ok, lp["y"], np.nan), nan_ok=True)  # ENU x = NED east
+    assert df["py"].to_numpy() == pytest.approx(np.where(xy_ok, lp["x"], np.nan), nan_ok=True)
+    assert df["pz"].to_numpy() == pytest.approx(np.where(z_ok, -lp["z"], np.nan), nan_ok=True)
 
     def onto(ts, v):
         return np.interp(stamps, ts, v, left=np.nan, right=np.nan)
@@ -99,17 +101,40 @@ def test_a_ulog_is_recognised_by_its_content_not_its_name(tmp_path):
     assert detect_format(renamed) == "ulog"
 
 
-@needs_logs
 def test_qr_ingest_of_a_px4_log_with_commands_only_says_what_is_missing(tmp_path, capsys):
-    """Both sample logs hold PWM commands, not ESC rpm: one line naming the log, the problem and the fix."""
+    """A flight logged with motor commands, not ESC rpm (as most PX4 logs: both shared samples too), and a
+    vehicle file without a command map: one line naming the log, the problem and the fix."""
+    from ulog_writer import write_ulog
+
+    t = np.arange(0, 5, 0.01)
+    p = np.column_stack([np.sin(t), np.cos(t), 1 + 0 * t])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    write_ulog(tmp_path / "f.ulg", t, p, q, np.full((len(t), 4), 0.5))
     out = tmp_path / "flight.csv"
-    status, _, err = run_cli(["ingest", PX4 / "sample.ulg", "--vehicle", VEHICLES / "asctec_hummingbird.yaml",
+    status, _, err = run_cli(["ingest", tmp_path / "f.ulg", "--vehicle", VEHICLES / "asctec_hummingbird.yaml",
                               "--out", out], capsys)
     assert status == 2
     (line,) = err.strip().splitlines()
-    assert str(PX4 / "sample.ulg") in line and "motor commands (actuator_outputs" in line
+    assert str(tmp_path / "f.ulg") in line and "motor commands (actuator_motors" in line
     assert "no command -> thrust map; fix: add rotor_input: command and command_map" in line
     assert "or log ESC telemetry (PX4: esc_status)" in line
+    assert not out.exists()
+
+
+@needs_logs
+@pytest.mark.parametrize("name, problem", [
+    ("sample.ulg", "the vehicle was never armed in this log"),  # vehicle_status.arming_state 0 throughout
+    ("sample_log_small.ulg", "no valid position in the whole log"),  # armed, but xy_valid = 0 throughout
+])
+def test_a_px4_log_that_holds_no_flight_is_refused_in_one_line(tmp_path, capsys, name, problem):
+    out = tmp_path / "flight.csv"
+    vehicle = tmp_path / "px4.yaml"
+    vehicle.write_text((VEHICLES / "asctec_hummingbird.yaml").read_text()
+                       + "rotor_input: command\ncommand_map: {a: 0.0, b: 1.0, k: 3.0}\n")
+    status, _, err = run_cli(["ingest", PX4 / name, "--vehicle", vehicle, "--out", out], capsys)
+    assert status == 2
+    (line,) = err.strip().splitlines()
+    assert str(PX4 / name) in line and problem in line and "fix: " in line
     assert not out.exists()
 
 

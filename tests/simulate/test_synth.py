@@ -6,6 +6,8 @@ import pytest
 import yaml
 
 from conftest import VEHICLES, run_cli
+from decisions import needs_two_kernels
+from qr.sim.synth import SynthConfig
 from qr.frames import quat_to_rot
 from qr.vehicle import load_vehicle
 
@@ -95,3 +97,37 @@ def test_extended_vehicle_effects_are_simulated(tmp_path, capsys):
     truth = json.loads((tmp_path / "e" / "truth.json").read_text())
     assert truth["effects"][0]["name"] == "body_force_bias"
     assert not load_vehicle(tmp_path / "e" / "vehicle.yaml").effects
+
+
+@needs_two_kernels
+def test_a_synthetic_flight_is_the_same_file_under_another_blas_kernel_and_thread_count(tmp_path):
+    """The plant, the controller's matrix products, its rotor-map inverse and LQR gain round the same on
+    every processor (no BLAS in them): the written flight is byte-identical.  A 40 ms delay on the
+    Crazyflie, the kind of flight whose closed loop amplifies the last bits most."""
+    import subprocess
+    import sys
+
+    from decisions import other_machine
+
+    args = ["synth", "--vehicle", str(VEHICLES / "crazyflie21_brushless.yaml"), "--duration", "30", "--seed", "4",
+            "--effect", "actuator_delay:delay_s=0.04", "--effect", "wind_force:fx=0.01,fy=-0.02,fz=0.005"]
+    here = subprocess.run([sys.executable, "-m", "qr.cli", *args, "--out", str(tmp_path / "a")], capture_output=True)
+    there = subprocess.run([sys.executable, "-m", "qr.cli", *args, "--out", str(tmp_path / "b")],
+                           env=other_machine(0), capture_output=True)
+    assert here.returncode == 0 and there.returncode == 0, (here.stderr, there.stderr)
+    assert (tmp_path / "a" / "flight.csv").read_bytes() == (tmp_path / "b" / "flight.csv").read_bytes()
+
+
+def test_a_flight_the_controller_loses_is_refused(monkeypatch):
+    """A vehicle whose controller cannot fly its hidden effects (a rotor delay of 60 ms on the Crazyflie's
+    fast attitude loop, with the loop kept at the default bandwidth) is no flight a pilot would log."""
+    import qr.sim.control as control
+    from qr.errors import QrInputError
+    from qr.sim.synth import simulate_truth
+
+    vehicle = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml")
+    delay = [{"name": "actuator_delay", "parameters": {"delay_s": 0.06}}]
+    simulate_truth(vehicle, delay, SynthConfig(duration=20, seed=1))  # the loop slowed for the lag: it flies
+    monkeypatch.setattr(control, "LAG_AT_DEFAULT", 1.0)  # never slowed
+    with pytest.raises(QrInputError, match="the controller lost the vehicle"):
+        simulate_truth(vehicle, delay, SynthConfig(duration=20, seed=1))

@@ -1,48 +1,151 @@
-"""What the named effects say about the vehicle file's own numbers.
+"""What the named effects say about the vehicle file's own numbers, where the data can tell.
 
-A coefficient effect (a C_T or C_Q error, an inertia or mass error) is a factor
-on a number in the vehicle file.  When that factor is gross (``GROSS``: 50 % or
-more either way) the file itself is the finding: "C_Q in vehicle.yaml looks
-×9.8 too small", with the value the data give.
+A coefficient effect (a C_T or C_Q error, an inertia or mass error) is a factor on a number in the
+vehicle file.  When that factor is gross (``GROSS``: 50 % or more either way) the file itself would be
+the finding ("C_Q in vehicle.yaml looks ×9.8 too small").  Such a statement is made only where the
+coefficient is identified (:func:`evidence`, :func:`coefficient_checks`):
+
+- no near-collinear partner: its variance inflation in the named set's joint fit is below ``VIF_MAX``
+  (else the data fix only a combination: the pair is named in the unresolved note, as a C_T error
+  against a constant body-z force while the thrust barely changes); an effect the selection reports
+  confounded (a C_T error against a mass error, which the roll/pitch torque could not arbitrate) is
+  stated with its partner;
+- stable: the named set refitted on the first and on the second half of the training blocks (in time:
+  across flights where there are several) makes the same statement on each;
+- consistent with the log's own evidence: a C_T or mass factor must agree with the hover thrust the
+  rotor map gives against the weight (``HOVER_TOL``); C_Q is fixed only relative to J_zz
+  (J_z α_z = C_Q-torque): its statement is about the ratio.
+
+What fails is listed as unresolved, with why: never a statement.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
 GROSS = 1.5  # a factor this far from 1, either way, is a wrong number in the file, not a small correction
+VIF_MAX = 10.0  # variance inflation above which a parameter is a combination with another, not itself
+HOVER_TOL = 1.25  # a C_T or mass factor may disagree with the log's hover balance by this factor at most
 
 
-def _factors(effect: dict, vehicle):
-    """(vehicle-file key, symbol, file value, factor true/file, s.e. of the factor) of a coefficient effect."""
-    p, se = effect["parameters"], effect.get("stderr", {})
-    name = effect["name"]
+@dataclass(frozen=True)
+class Evidence:
+    """What the training data say of one named effect's parameters (one-step fit)."""
+
+    inflation: list[float]  # per parameter: variance inflation in the named set's joint fit
+    partner: list[str | None]  # per parameter: the effect it is most collinear with
+    halves: tuple[list[float], list[float]]  # the parameters (file units) fitted on each half of the blocks
+
+
+def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
+    """:class:`Evidence` of each effect of ``named`` fitted by the one-step fit (not those in ``fixed``)."""
+    from ..effects import CATALOG
+    from ..identification.normal_equations import Columns, fit, inflation
+
+    own = [e for e in named if e not in fixed]
+    if not own:
+        return {}
+    cols = Columns.of(own)
+    vif = inflation(stats, own)
+    idx = stats.cols.index(own)
+    G = stats.G.sum(0)[np.ix_(idx, idx)]
+    d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    corr = G / np.outer(d, d)
+    owner = [e for e in own for _ in CATALOG[e].params]
+    B = stats.blocks
+    halves = [fit(stats, own, np.arange(B // 2)), fit(stats, own, np.arange(B // 2, B))] if B >= 4 else None
+    out = {}
+    for e in own:
+        sl = cols.slices[e]
+        partner = []
+        for j in range(sl.start, sl.stop):
+            others = [k for k in range(len(owner)) if owner[k] != e]
+            partner.append(owner[max(others, key=lambda k: abs(corr[j, k]))] if others else None)
+        neutral = np.asarray(CATALOG[e].neutral, float)
+        out[e] = Evidence([float(v) for v in vif[sl]], partner,
+                          tuple((h[sl] + neutral).tolist() for h in halves) if halves else ([], []))
+    return out
+
+
+def _factors(name: str, p: dict, se: dict, vehicle):
+    """(vehicle-file key, symbol, file value, factor true/file, s.e. of the factor, parameter) of a
+    coefficient effect."""
     if name == "thrust_gain":
-        yield "thrust_coeff", "C_T", vehicle.thrust_coeff, p["gain"], se.get("gain")
+        yield "thrust_coeff", "C_T", vehicle.thrust_coeff, p["gain"], se.get("gain"), "gain"
     elif name == "yaw_torque_gain":
-        yield "torque_coeff", "C_Q", vehicle.torque_coeff, p["gain"], se.get("gain")
+        yield "torque_coeff", "C_Q", vehicle.torque_coeff, p["gain"], se.get("gain"), "gain"
     elif name == "mass_error":
         m = vehicle.mass
-        yield "mass", "m", m, 1 + p["dm"] / m, se.get("dm", 0) / m
+        yield "mass", "m", m, 1 + p["dm"] / m, (se.get("dm") or 0) / m, "dm"
     elif name == "inertia_error":
         for i, ax in enumerate(("xx", "yy", "zz")):
             J = float(vehicle.inertia[i])
-            yield f"inertia[{i}]", f"J{ax}", J, 1 + p[f"dJ{ax}"] / J, se.get(f"dJ{ax}", 0) / J
+            yield f"inertia[{i}]", f"J{ax}", J, 1 + p[f"dJ{ax}"] / J, (se.get(f"dJ{ax}") or 0) / J, f"dJ{ax}"
 
 
-def coefficient_checks(effects: list[dict], vehicle, vehicle_path) -> list[dict]:
-    """One entry per vehicle-file number the named effects put off by ``GROSS`` or more."""
-    out = []
+def _gross(factor: float) -> int:
+    """+1 for a factor of GROSS or more, -1 for 1/GROSS or less, 0 between."""
+    return 1 if factor >= GROSS else -1 if factor <= 1 / GROSS else 0
+
+
+def _why_not(name, key, sym, factor, param, ev: Evidence | None, vehicle, hover_ratio) -> str | None:
+    """Why a gross factor of ``sym`` is not identified by these data; None if it is."""
+    from ..effects import CATALOG
+
+    if ev is None:
+        return "it is not fitted by the one-step fit (its stability cannot be checked)"
+    j = list(CATALOG[name].params).index(param)
+    if ev.inflation[j] >= VIF_MAX:
+        return (f"it trades off against {ev.partner[j]} (variance inflation {ev.inflation[j]:.0f}): the data fix "
+                f"only a combination of the two")
+    if ev.halves[0]:
+        half = []
+        for h in ev.halves:
+            hp = dict(zip(CATALOG[name].params, h))
+            half.append([f for k, _, _, f, _, q in _factors(name, hp, {}, vehicle) if k == key][0])
+        if not all(_gross(f) == _gross(factor) for f in half):
+            return (f"the first and the second half of the training data give x{half[0]:.3g} and x{half[1]:.3g}: "
+                    f"not the same statement")
+    if key in ("thrust_coeff", "mass") and hover_ratio is not None and np.isfinite(hover_ratio):
+        # hover: C_T-thrust x gain = (m + dm) g, so the file's rotor map gives m g x (mass factor / gain)
+        predicted = 1 / factor if key == "thrust_coeff" else factor
+        if not 1 / HOVER_TOL <= hover_ratio / predicted <= HOVER_TOL:
+            return (f"the log's hover balance contradicts it: by the file the rotors give {hover_ratio:.3g} x m g "
+                    f"in flight, where x{factor:.3g} would make it {predicted:.3g} x m g")
+    return None
+
+
+def coefficient_checks(effects: list[dict], vehicle, vehicle_path, evidence_of: dict | None = None,
+                       hover_ratio: float | None = None) -> tuple[list[dict], list[dict]]:
+    """(statements, unresolved): one statement per vehicle-file number the named effects put off by
+    ``GROSS`` or more *and* the data identify; the other gross factors, each with why it is not said."""
+    said, unresolved = [], []
     for e in effects:
-        for key, sym, value, factor, se in _factors(e, vehicle):
-            if not (factor >= GROSS or factor <= 1 / GROSS):
+        for key, sym, value, factor, se, param in _factors(e["name"], e["parameters"], e.get("stderr", {}), vehicle):
+            if not _gross(factor):
+                continue
+            why = _why_not(e["name"], key, sym, factor, param, (evidence_of or {}).get(e["name"]), vehicle,
+                           hover_ratio)
+            entry = {"key": key, "file_value": value, "estimate": value * factor, "factor": factor,
+                     "factor_stderr": se, "effect": e["name"]}
+            if why:
+                unresolved.append({**entry, "why": f"{sym} ({key}) x{factor:.3g} not stated: {why}"})
                 continue
             x, word = (factor, "small") if factor > 1 else (1 / factor, "large")
-            alike = [c for c in e.get("confounded_with", [])
-                     if not (key in ("inertia[0]", "inertia[1]") and c == "yaw_torque_gain")]  # that is about z
-            also = f" (or, confounded with it: {', '.join(alike)})" if alike else ""
-            out.append({
-                "key": key, "file_value": value, "estimate": value * factor, "factor": factor,
-                "factor_stderr": se, "effect": e["name"],
-                "statement": f"{sym} ({key}) in {vehicle_path} looks x{x:.2g} too {word}: the data give "
-                             f"{value * factor:.4g}, the file says {value:.4g}{also}",
-            })
-    return out
+            if key == "torque_coeff":  # J_z α_z = C_Q-torque: the data fix the ratio
+                statement = (f"C_Q / Jzz (torque_coeff / inertia[2]) in {vehicle_path} looks x{x:.2g} too {word}: "
+                             f"the data give C_Q / Jzz = {value * factor / vehicle.inertia[2]:.4g}, the file says "
+                             f"{value / vehicle.inertia[2]:.4g} (only the ratio is identified)")
+            else:
+                statement = (f"{sym} ({key}) in {vehicle_path} looks x{x:.2g} too {word}: the data give "
+                             f"{value * factor:.4g}, the file says {value:.4g}")
+                if key == "inertia[2]":
+                    statement += f" (only C_Q / Jzz is identified: equally, C_Q x{1 / factor:.2g})"
+            # a confounded partner (C_T against a mass error where the torque rows cannot arbitrate): the pair
+            alike = [c for c in e.get("confounded_with", []) if {e["name"], c} != {"inertia_error", "yaw_torque_gain"}]
+            if alike:
+                statement += f" (or, confounded with it: {', '.join(alike)})"
+            said.append({**entry, "statement": statement})
+    return said, unresolved

@@ -58,10 +58,13 @@ def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
                       "path": [_clean(s) for s in res["selection"]["path"]],
                       "equivalent": [_clean(s) for s in res["selection"].get("equivalent", [])],
                       "rejected": res["selection"].get("rejected", {}),
+                      "not_named": res["selection"].get("not_named", {}),
                       "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in d.items()}
                                              for k, d in res.get("torque_arbitration", {}).items()},
                       "slow_torque": _slow_json(res.get("slow_torque"))},
         "verdict": verdict(res),
+        "described": not res.get("misfit"),
+        **({"misfit": {k: float(f"{v:.4g}") for k, v in res["misfit"].items()}} if res.get("misfit") else {}),
         "config": cfg_dict,
     }
 
@@ -102,6 +105,15 @@ def _clean(step: dict) -> dict:
 
 def verdict(res: dict) -> str:
     ratio = res["nominal_loss"]
+    misfit = res.get("misfit")
+    if misfit:
+        return (f"The model does not describe this flight: even extended, the held-out residual is "
+                f"{100 * misfit['force_of_weight']:.0f} % of the weight in force and "
+                f"{100 * misfit['torque_of_weight_at_arm']:.0f} % of the weight's torque at the arm "
+                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so nothing is named. Look at the "
+                "log's frames and units (the convention checks in diagnosis.json), its time stamps and offsets "
+                "(qr ingest prints them), the vehicle file (mass, thrust_coeff, rotor_speed_unit, layout) and "
+                "events no model holds (ground contact, a tether, a crash).")
     if not res["effects"]:
         rem = res.get("remainder", {})
         tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
@@ -159,6 +171,20 @@ def _anatomy_table(anatomy: dict) -> list[str]:
     return L + [""]
 
 
+def _conventions(per_flight: list[dict]) -> list[str]:
+    """The convention checks (qr.conventions): what each measured, or that every flight passed them."""
+    if not per_flight:
+        return []
+    done = sorted({c["check"] for f in per_flight for c in f["checks"]})
+    if len(per_flight) > 3:
+        return [f"Conventions: all {len(per_flight)} flights pass the {', '.join(done)} checks "
+                "(frames, quaternion order, units, rotor numbering; diagnosis.json says what each measured).\n"]
+    out = ["Conventions (frames, quaternion order, units, rotor numbering), checked before any identification:\n"]
+    for f in per_flight:
+        out += [f"- {Path(f['flight']).name}, {c['check']}: {c['measured']}." for c in f["checks"]]
+    return out + [""]
+
+
 def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
     L = []
     names = doc["flights"]
@@ -171,6 +197,7 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
              f"{doc['split']['test'][0]:.1f}-{doc['split']['test'][1]:.1f} s); all numbers below are on the "
              "held-out part.\n")
     L += _data_used(doc)
+    L += _conventions(doc.get("conventions", []))
     L.append("## How far the nominal model is off\n")
     L.append("| axis | nominal RMSE | extended RMSE | noise floor | extended / noise |")
     L.append("|---|---:|---:|---:|---:|")
@@ -194,24 +221,43 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
                 L.append(f"  On this flight it cannot be told apart from {', '.join(e['confounded_with'])}; "
                          "the simpler one is named.")
         L.append("")
+    elif res.get("misfit"):
+        L.append("None: the model does not describe this flight (above).\n")
+    elif doc["selection"].get("not_named"):
+        L.append("None: what the selection found on the training part is not supported by the held-out part "
+                 "(below).\n")
     else:
         L.append("None: no catalog effect improves the cross-validated fit by more than "
                  f"{100 * doc['config']['selection']['min_gain']:.0f} % of the residual.\n")
+    if doc["selection"].get("not_named"):
+        L.append("Selected on the training part, but not named:\n")
+        L += [f"- `{e}`: {why}." for e, why in doc["selection"]["not_named"].items()]
+        L.append("")
+    if doc.get("vehicle_file") or doc.get("vehicle_file_unresolved"):
+        L.append("## The vehicle file\n")
+        L += [f"- {c['statement'][0].upper() + c['statement'][1:]}." for c in doc.get("vehicle_file", [])]
+        L += [f"- {c['why']}." for c in doc.get("vehicle_file_unresolved", [])]
+        L.append("")
     L.append("Selection path: the best set of each size by cross-validated loss (noise-variance units); a "
              "larger set is named only if it beats the smaller one by "
              f"{100 * doc['config']['selection']['min_gain']:.0f} % in most folds, or by "
              f"{100 * doc['config']['selection']['strong_gain']:.0f} % where it acts (paired per-block t >= "
-             f"{doc['config']['selection']['t_gain']:g}):\n")
-    L.append("| effects | best set | CV loss | gain | folds improved | paired t | runner-up (loss) | named |")
-    L.append("|---:|---|---:|---:|---:|---:|---|---|")
+             f"{doc['config']['selection']['t_gain']:g}). The closest margin is the decision's statistic against "
+             "its nearest threshold (relative); within 1e-9 it is numerical noise, decided against the larger "
+             "set on every machine (\"on the edge\"):\n")
+    L.append("| effects | best set | CV loss | gain | folds improved | paired t | runner-up (loss) | named | "
+             "closest margin |")
+    L.append("|---:|---|---:|---:|---:|---:|---|---|---:|")
     for s in doc["selection"]["path"]:
         best = ", ".join(f"`{e}`" for e in s["effects"]) or "(nominal)"
         runner = (", ".join(s["runner_up"]) + f" ({s['runner_up_loss']:.4g})") if s.get("runner_up") else "-"
         gain = f"{100 * s['gain']:.1f} %" if s["size"] else "-"
         share = f"{100 * s['fold_share']:.0f} %" if s["size"] else "-"
         med = f"{s['t']:.1f}" if s["size"] else "-"
+        edge = "-" if "margin" not in s else (f"on the edge ({s['margin']:.1e}: {', '.join(s['on_edge'])})"
+                                             if s["on_edge"] else f"{s['margin']:+.2g}")
         L.append(f"| {s['size']} | {best} | {s['loss']:.4g} | {gain} | {share} | {med} | {runner} | "
-                 f"{'yes' if s['accepted'] else 'no'} |")
+                 f"{'yes' if s['accepted'] else 'no'} | {edge} |")
     L.append("")
     if doc["selection"].get("equivalent"):
         L.append("Sets the data cannot tell from the named one (the simplest is named):\n")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
 from ..allowed import check_fields, check_known, setting, show
+from ..conventions import CHECKS
 from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
 from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
@@ -64,6 +65,8 @@ class DiagnoseConfig:
     # many samples (0: off), named per axis when it explains at least slow_torque_min_gain of that sum
     slow_torque_horizon: int = setting(50, "integer", ge=0)
     slow_torque_min_gain: float = setting(0.05, ge=0, le=1)
+    # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
+    skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

@@ -36,6 +36,7 @@ from scipy.stats import chi2, norm
 from ..allowed import check_fields, setting
 from ..effects import CATALOG
 from .bootstrap import bootstrap
+from .edge import EDGE, Margins, margin, rank_key
 from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit, solve
 
 # Never named together (spec): the same term in force (gain = m/(m + dm)), and a C_T error is an
@@ -138,7 +139,8 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
         d = (joint - alone) / np.maximum(st.n, 1.0)
         grow = float((joint.sum() - alone.sum()) / max(alone.sum(), 1e-300))
         t = float(d.mean() / max(d.std(ddof=1) / np.sqrt(len(d)), 1e-300)) if len(d) > 2 else 0.0
-        if grow > cfg.consistency_rel and t > cfg.consistency_t:
+        m = Margins()  # on the edge: inconsistent (not named)
+        if m.at_least(grow, cfg.consistency_rel, on_edge=True) and m.at_least(t, cfg.consistency_t, on_edge=True):
             cols = Columns.of(effects)
             show = "; ".join(f"{e}: " + ", ".join(
                 f"{p} = {v + n:.4g}" for p, v, n in zip(CATALOG[e].params, own[cols.slices[e]], CATALOG[e].neutral))
@@ -175,9 +177,38 @@ def pinned_down(stats: BlockStats, effects: list[str], cfg: SelectionConfig) -> 
         wald = float(theta[sl] @ np.linalg.pinv(np.atleast_2d(np.cov(reps[:, sl], rowvar=False)),
                                                  hermitian=True) @ theta[sl])
         limit = wald_limit(cfg.t_name, k)
-        if wald < limit:
+        if not Margins().at_least(wald, limit, on_edge=False):
             return (f"not pinned down beside {', '.join(x for x in effects if x != e)}: jointly within "
                     f"{cfg.t_name:g} s.e. of no effect (Wald {wald:.1f} < {limit:.1f})")
+    return None
+
+
+# Two effects whose fitted terms leave less than this share of the smaller one's energy when added (their
+# sum's amplitude below a third of it) cancel where the flight spends its time: the fit splits one
+# term between them along a direction the data barely constrain (a mass error against a body-z force at
+# hover), and the pair is one finding at most.
+CANCEL = 0.1
+
+
+def cancelling(stats: BlockStats, effects: list[str]) -> str | None:
+    """Do two of ``effects``, fitted jointly, cancel each other (``CANCEL``)?  Energies are the
+    weighted sums of squares of each term over the training data, from the normal equations."""
+    if len(effects) < 2:
+        return None
+    theta = fit(stats, effects)
+    cols = Columns.of(effects)
+    G = stats.total[0]
+    idx = {e: stats.cols.index([e]) for e in effects}
+    th = {e: theta[cols.slices[e]] for e in effects}
+    for i, a in enumerate(effects):
+        for b in effects[i + 1:]:
+            Ea = float(th[a] @ G[np.ix_(idx[a], idx[a])] @ th[a])
+            Eb = float(th[b] @ G[np.ix_(idx[b], idx[b])] @ th[b])
+            Eab = float(th[a] @ G[np.ix_(idx[a], idx[b])] @ th[b])
+            small = min(Ea, Eb)
+            if small > 0 and not Margins().at_least(Ea + Eb + 2 * Eab, CANCEL * small, on_edge=False):
+                return (f"{a} and {b} cancel where the flight spends its time: fitted together, their terms "
+                        f"add up to {100 * np.sqrt(max(Ea + Eb + 2 * Eab, 0) / small):.0f} % of the smaller one")
     return None
 
 
@@ -202,7 +233,7 @@ class Admissibility:
         weak = pinned_down(self.stats, effects, self.cfg)
         if weak:
             return weak
-        return consistent(self.stats, self.row_stats, effects, self.cfg)
+        return cancelling(self.stats, effects) or consistent(self.stats, self.row_stats, effects, self.cfg)
 
 
 def search(cv: CrossValidator, pool: list[str], admissible: Admissibility, cfg: SelectionConfig
@@ -216,7 +247,9 @@ def search(cv: CrossValidator, pool: list[str], admissible: Admissibility, cfg: 
     levels, grow_from = [[(cv.loss([]), ())]], [()]
     for _ in range(min(cfg.max_effects + 1, len(pool))):
         grown = {tuple(sorted(S + (c,))) for S in grow_from for c in pool if c not in S}
-        ranked = sorted((cv.loss(S), S) for S in grown if not same_term(S))
+        # losses that tie to numerical noise are ordered by simplicity, then names: the same everywhere
+        ranked = [(L, S) for _, _, L, S in sorted((rank_key(cv.loss(S)), simplicity(S), cv.loss(S), S)
+                                                  for S in grown if not same_term(S))]
         keep = []
         for L, S in ranked:
             if admissible(S) is None:
@@ -230,37 +263,49 @@ def search(cv: CrossValidator, pool: list[str], admissible: Admissibility, cfg: 
     return levels
 
 
-def better(cv: CrossValidator, new, old, cfg: SelectionConfig) -> bool:
+def better(cv: CrossValidator, new, old, cfg: SelectionConfig, margins: Margins | None = None) -> bool:
     """Does set ``new`` predict held-out blocks better than ``old`` by ``min_gain`` of the loss, and
     either consistently (in ``min_fold_share`` of the folds, by ``min_gain`` in the median fold: one
     fold cannot carry it) or strongly where it acts (by ``strong_gain``, in most folds, with a paired
     per-block t >= ``t_gain``: an effect confined to part of the flight, such as the kinematics of a
     marker during fast rotations, improves few blocks a lot and the others not at all)?"""
+    m = margins if margins is not None else Margins()
     L_new, L_old = cv.loss(new), cv.loss(old)
-    if L_new > (1 - cfg.min_gain) * L_old:
+    if not m.at_most(L_new, (1 - cfg.min_gain) * L_old, "the loss's gain against min_gain"):
         return False
     cur, trial = cv.losses(old), cv.losses(new)
-    share = float(np.mean(trial < cur))
-    if share >= cfg.min_fold_share and np.median((cur - trial) / cur) >= cfg.min_gain:
+    share = fold_share(cur, trial)  # a count of folds: compared exactly
+    if share >= cfg.min_fold_share and \
+            m.at_least(float(np.median((cur - trial) / cur)), cfg.min_gain, "the median fold's gain against min_gain"):
         return True
-    return bool(L_new <= (1 - cfg.strong_gain) * L_old and share > 0.5 and cv.paired_t(old, new) >= cfg.t_gain)
+    return bool(m.at_most(L_new, (1 - cfg.strong_gain) * L_old, "the loss's gain against strong_gain")
+                and share > 0.5
+                and m.at_least(cv.paired_t(old, new), cfg.t_gain, "the paired t against t_gain"))
+
+
+def fold_share(cur: np.ndarray, trial: np.ndarray) -> float:
+    """Share of folds a trial set improves; a fold whose losses agree to numerical noise is not improved."""
+    return float(np.mean([margin(c, t) > EDGE for c, t in zip(cur, trial)]))
 
 
 def choose_size(cv: CrossValidator, levels, cfg: SelectionConfig) -> tuple[int, list[dict]]:
     """Step 3: grow while the best set one effect larger is ``better`` than the current best."""
     best = [lv[0] for lv in levels]
+    margins = [Margins()] + [Margins() for _ in best[1:]]
     k, path = 0, []
-    while k + 1 < len(best) and better(cv, best[k + 1][1], best[k][1], cfg):
+    while k + 1 < len(best) and better(cv, best[k + 1][1], best[k][1], cfg, margins[k + 1]):
         k += 1
     for j, (L, S) in enumerate(best):
         ref = best[max(j - 1, 0)][0]
         cur, trial = cv.losses(best[max(j - 1, 0)][1]), cv.losses(S)
+        judged = 0 < j <= k + 1  # the sizes whose step was decided
         path.append({"size": j, "effects": list(S), "loss": L, "gain": (ref - L) / ref if j else 0.0,
-                     "fold_share": float(np.mean(trial < cur)) if j else 1.0,
+                     "fold_share": fold_share(cur, trial) if j else 1.0,
                      "t": cv.paired_t(best[j - 1][1], S) if j else 0.0,
                      "runner_up": list(levels[j][1][1]) if len(levels[j]) > 1 else None,
                      "runner_up_loss": levels[j][1][0] if len(levels[j]) > 1 else None,
-                     "accepted": j <= k})
+                     "accepted": j <= k,
+                     **({"margin": margins[j].closest, "on_edge": margins[j].on_edge} if judged else {})})
     return k, path
 
 
@@ -293,18 +338,21 @@ def resolve_equivalents(cv: CrossValidator, level, admissible, cfg: SelectionCon
     def t_swap(a, b):
         return cv.paired_t(a, b, on=rows[judge.get(a) or dict(swaps(a))[b]])
 
+    m = Margins()  # on the edge, a set is equivalent: the simplest is named
+
     def equivalent(S, L):
         if S == S0:
             return True
         if S in judge:
-            return abs(t_swap(S, S0)) < cfg.t_equivalent
-        return L <= (1 + cfg.min_gain) * L0 and cv.paired_t(S, S0) < cfg.t_equivalent
+            return m.at_most(abs(t_swap(S, S0)), cfg.t_equivalent, "a swap's t", on_edge=True)
+        return m.at_most(L, (1 + cfg.min_gain) * L0, "equivalence's loss", on_edge=True) and \
+            m.at_most(cv.paired_t(S, S0), cfg.t_equivalent, "equivalence's t", on_edge=True)
 
     eq = [(L, S) for S, L in pool.items() if equivalent(S, L)]
-    L, chosen = min(eq, key=lambda x: simplicity(x[1]))
+    L, chosen = min(eq, key=lambda x: (simplicity(x[1]), x[1]))
     # a swap the judging rows prefer significantly is not a matter of simplicity
     for S, _ in swaps(chosen) if rows else []:
-        if S in pool and t_swap(chosen, S) >= cfg.t_equivalent:
+        if S in pool and m.at_least(t_swap(chosen, S), cfg.t_equivalent, "a swap's t"):
             L, chosen = pool[S], S
     confounded = {e: [c for c in PART_CONFOUNDED.get(e, []) if c in cv.stats.cols.effects] for e in chosen}
     for _, S in eq:

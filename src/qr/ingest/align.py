@@ -87,10 +87,15 @@ def _lag(t, stream, reference, max_lag_s, confounders=None, smooth_s=SMOOTH_S, m
         y[:, j] = b[inner, j] - basis @ (basis.T @ b[inner, j])
     lags = np.arange(-n, n + 1)
     corr = np.empty(len(lags))
+    yy = float(np.sum(y * y))
     for i, s in enumerate(lags):  # stream shifted by s samples: a[j + s] against b[j]
         x = a[n + s:m - n + s]
         x = np.column_stack([x[:, j] - bases[j] @ (bases[j].T @ x[:, j]) for j in range(k)])
-        corr[i] = float(np.sum(x * y) / np.sqrt(np.sum(x * x) * np.sum(y * y)))
+        xx = float(np.sum(x * x))
+        # a stream that never varies (rotors that never ran) has no correlation: nothing to say
+        corr[i] = float(np.sum(x * y)) / np.sqrt(xx * yy) if xx * yy > 0 else np.nan
+    if not np.isfinite(corr).all():
+        return None
     return _peak(corr, lags, dt)
 
 
@@ -134,9 +139,30 @@ def _rotor_lag(flight, t, q, w, vehicle, max_lag_s):
             "against": "roll/pitch rotor torque vs the mocap attitude's angular acceleration"}
 
 
+# An offset is acted on (``--align``) only where the log's two halves, each estimated alone, agree with
+# each other to this (s) or to this share of the offset, whichever is larger: a peak that wanders between
+# halves is the excitation's, not the clock's (on a gentle, correctly stamped synthetic flight the rotor
+# stream's peak sat 34 ms from zero).
+AGREE_S = 0.005
+AGREE_SHARE = 0.25
+
+
 def offsets(flight: pd.DataFrame, vehicle=None, max_lag_s: float = MAX_LAG_S) -> dict:
-    """``{stream: {"offset_s", "correlation", "against"}}`` for ``gyro`` (where the log has one) and
-    ``rotors`` (with ``vehicle``)."""
+    """``{stream: {"offset_s", "correlation", "against", "halves", "confident"}}`` for ``gyro`` (where the
+    log has one) and ``rotors`` (with ``vehicle``); ``halves``: the offset of each half of the log alone,
+    ``confident``: whether they agree (``AGREE_S``, ``AGREE_SHARE``) and say to act on it."""
+    found = _offsets(flight, vehicle, max_lag_s)
+    mid = len(flight) // 2
+    parts = [_offsets(flight.iloc[:mid].reset_index(drop=True), vehicle, max_lag_s),
+             _offsets(flight.iloc[mid:].reset_index(drop=True), vehicle, max_lag_s)]
+    for kind, o in found.items():
+        halves = [p.get(kind, {}).get("offset_s") for p in parts]
+        o["halves"] = halves
+        o["confident"] = None not in halves and abs(halves[0] - halves[1]) <= max(AGREE_S, AGREE_SHARE * abs(o["offset_s"]))
+    return found
+
+
+def _offsets(flight: pd.DataFrame, vehicle=None, max_lag_s: float = MAX_LAG_S) -> dict:
     t = flight["t"].to_numpy(float)
     q = flight[["qw", "qx", "qy", "qz"]].to_numpy(float)
     if np.all(np.isfinite(q), axis=1).sum() <= 10:
@@ -158,11 +184,11 @@ def offsets(flight: pd.DataFrame, vehicle=None, max_lag_s: float = MAX_LAG_S) ->
 
 def apply(flight: pd.DataFrame, found: dict) -> pd.DataFrame:
     """The flight with each stream moved by its offset (``aligned(t) = logged(t + τ)``; NaN where the
-    shifted stream has no sample)."""
+    shifted stream has no sample); a stream whose offset is not ``confident`` stays."""
     out = flight.copy()
     t = flight["t"].to_numpy(float)
     for kind, cols in STREAMS.items():
-        if kind not in found:
+        if kind not in found or not found[kind].get("confident", True):
             continue
         tau = found[kind]["offset_s"]
         for col in cols:

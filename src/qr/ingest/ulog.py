@@ -91,7 +91,27 @@ def _pose(log: _Log) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     if inside.any() and len(ta) >= 2:
         slerp = Slerp(ta.astype(float), Rotation.from_quat(qa, scalar_first=True))
         q[inside] = slerp(t[inside].astype(float)).as_quat(scalar_first=True)
-    return t, np.column_stack([lp["x"], lp["y"], lp["z"]]), q, "vehicle_local_position + vehicle_attitude"
+    p = np.column_stack([lp["x"], lp["y"], lp["z"]]).astype(float)
+    # EKF2 marks a position it has no fix for (no GPS, vision or mocap) invalid and logs 0: a dropout
+    for cols, flag in (([0, 1], "xy_valid"), ([2], "z_valid")):
+        if flag in lp:
+            p[np.ix_(np.asarray(lp[flag]) == 0, cols)] = np.nan
+    return t, p, q, "vehicle_local_position + vehicle_attitude"
+
+
+# PX4's arming states (vehicle_status.arming_state): ARMED is 2 in every version (INIT 0 / STANDBY 1 before)
+ARMED = 2
+
+
+def _ever_armed(log: _Log) -> bool | None:
+    """Whether the vehicle was armed at any time of the log (None: the log does not say)."""
+    d = log.topic("actuator_armed", ["armed"])
+    if d is not None:
+        return bool(np.any(np.asarray(d["armed"]) == 1))
+    d = log.topic("vehicle_status", ["arming_state"])
+    if d is not None:
+        return bool(np.any(np.asarray(d["arming_state"]) == ARMED))
+    return None
 
 
 def _pwm_range(log: _Log, i: int) -> tuple[float, float]:
@@ -121,9 +141,26 @@ def _rotors(log: _Log) -> tuple[list[np.ndarray], np.ndarray, str, str]:
                       "log esc_status (ESC telemetry) or the actuator outputs")
 
 
-def read(path: str | Path) -> pd.DataFrame:
+def read(path: str | Path, check: bool = True) -> pd.DataFrame:
+    """The log as a canonical flight; ``check``: refuse a log that holds no flight (never armed, no valid
+    position), which a reader test of the frames may skip."""
     path = Path(path)
     log = _Log(path)
+    df = _read(log)
+    if check:
+        if _ever_armed(log) is False:
+            raise QrInputError(path, "the vehicle was never armed in this log (PX4 logs it disarmed throughout: "
+                                     "the motors never ran)", "give the log of a flight")
+        pos = df[["px", "py", "pz"]].to_numpy()
+        if not np.isfinite(pos).all(axis=1).any():
+            raise QrInputError(path, f"no valid position in the whole log ({df.attrs['sources']['pose']}: PX4 marks "
+                                     "it invalid, e.g. xy_valid = 0 without GPS, vision or motion capture)",
+                               "log a position source (motion capture or vision: vehicle_mocap_odometry / "
+                               "vehicle_visual_odometry) or give a flight with a position fix")
+    return df
+
+
+def _read(log: _Log) -> pd.DataFrame:
     t_us, p_ned, q_ned, pose_src = _pose(log)
     keep = np.concatenate([[True], np.diff(t_us) > 0])  # repeated stamps: the first sample stands
     t_us, p_ned, q_ned = t_us[keep], p_ned[keep], q_ned[keep]

@@ -19,7 +19,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..frames_compiled import R_entries, cross, quat_to_R
+from ..frames_compiled import R_entries, cross, matvec, quat_to_R
 
 from ..frames import G
 
@@ -302,9 +302,9 @@ def tracked_point(x, a, alpha, r):
     """Position, velocity, acceleration (world) of the point at body offset ``r`` from the CG."""
     R = quat_to_R(x[6:10])
     w = x[10:13]
-    p = x[0:3] + R @ r
-    v = x[3:6] + R @ cross(w, r)
-    acc = a + R @ (cross(alpha, r) + cross(w, cross(w, r)))
+    p = x[0:3] + matvec(R, r)
+    v = x[3:6] + matvec(R, cross(w, r))
+    acc = a + matvec(R, cross(alpha, r) + cross(w, cross(w, r)))
     return p, v, acc
 
 

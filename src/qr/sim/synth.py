@@ -21,7 +21,7 @@ from ..errors import QrInputError
 from ..flight import POSITION, QUATERNION, ROTORS, write_flight
 from ..frames import quat_multiply
 from ..vehicle import save_vehicle, vehicle_from_dict
-from .control import Gains, control, controller_params
+from .control import Gains, control, controller_params, for_lag
 from .plant import P_DELAY, P_MARKER, P_TAU, history_buffer, hover_state, plant_accels, rk4_step, tracked_point, true_params
 from .trajectory import RandomTrajectory, TrajectoryConfig, random_trajectory, reference
 
@@ -109,7 +109,7 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
     dt = 1.0 / (cfg.rate * log_every)
     n_steps = int(round(cfg.duration / dt))
     P = true_params(vehicle, effects)
-    C = controller_params(vehicle, cfg.gains)
+    C = controller_params(vehicle, for_lag(cfg.gains, P[P_DELAY] + P[P_TAU]))
     p0, _, _, y0, _ = traj.sample(np.array([0.0]))
     x0 = hover_state(vehicle, p0[0], float(y0[0]))
     hist = history_buffer(P, dt, x0[13:17])
@@ -118,7 +118,32 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
         t_bad = out[np.flatnonzero(~np.isfinite(out).all(axis=1))[0], 0]
         raise QrInputError("synthetic flight", f"the closed loop diverged at t = {t_bad:.2f} s",
                            "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
-    return pd.DataFrame(out, columns=TRUTH_COLUMNS)
+    truth = pd.DataFrame(out, columns=TRUTH_COLUMNS)
+    lost = lost_control(truth)
+    if lost:
+        raise QrInputError("synthetic flight", f"the controller lost the vehicle: {lost}",
+                           "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
+    return truth
+
+
+# A flight the controller no longer tracks is not a flight a pilot would log: its chaos also makes its
+# samples depend on the last bits of every floating-point operation (the BLAS kernel, the compiler).
+MAX_TRACKING_ERROR = 1.0  # m
+
+
+def lost_control(truth: pd.DataFrame) -> str | None:
+    """Why the simulated vehicle was lost (tracking error over ``MAX_TRACKING_ERROR``, or upside down),
+    or None."""
+    t = truth["t"].to_numpy()
+    err = np.linalg.norm(truth[POSITION].to_numpy() - truth[["ref_px", "ref_py", "ref_pz"]].to_numpy(), axis=1)
+    qx, qy = truth["qx"].to_numpy(), truth["qy"].to_numpy()
+    checks = ((err > MAX_TRACKING_ERROR, lambda i: f"{err[i]:.2f} m from the reference"),
+              (1 - 2 * (qx**2 + qy**2) < 0, lambda i: "upside down"))
+    first = [(np.flatnonzero(bad)[0], say) for bad, say in checks if bad.any()]
+    if not first:
+        return None
+    i, say = min(first, key=lambda x: x[0])
+    return f"{say(i)} at t = {t[i]:.2f} s"
 
 
 def add_noise(truth: pd.DataFrame, vehicle, noise: NoiseConfig, rng: np.random.Generator) -> pd.DataFrame:

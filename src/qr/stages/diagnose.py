@@ -65,10 +65,11 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
 
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
 
+    from .. import conventions
     from ..atomic import write_json
     from ..config import to_dict
     from ..estimation.settings import resolve as resolve_filter
-    from ..flight import read_flight
+    from ..flight import hover_ratio, read_flight
     from ..segments import flight_segments
     from ..diagnose.coefficients import coefficient_checks
     from ..diagnose.crossfit import Estimates, prepare_flight
@@ -88,9 +89,11 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
     need = (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
-    split = []
+    split, checks = [], []
     for f, m in zip(flights, measured):
         fs = flight_segments(m, vehicle, 2 * dcfg.trim_s + dcfg.block_s, f)
+        checks.append({"flight": str(f), "checks": [r.as_dict() for r in conventions.require(
+            m, vehicle, f, dcfg.skip_checks, "diagnose.skip_checks=[{name}] at the end of the command")]})
         _check_length(f, fs, need, dcfg, blocks)
         split.append(fs)
     work = []  # (flight, segment start, state table, cross-fitting pair, measured rows)
@@ -165,7 +168,10 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
                                    "extended_torque_rmse": rem["extended_torque_rmse"],
                                    "hybrid_torque_rmse": rem["hybrid_torque_rmse"]}
     doc.update(segments_json(doc["flights"], split))
-    doc["vehicle_file"] = coefficient_checks(doc["effects"], vehicle, vehicle_path)
+    doc["conventions"] = checks
+    hover = hover_ratio(pd.concat(measured, ignore_index=True), vehicle)
+    doc["vehicle_file"], doc["vehicle_file_unresolved"] = coefficient_checks(doc["effects"], vehicle, vehicle_path,
+                                                                             res["evidence"], hover)
     if doc["vehicle_file"]:
         doc["verdict"] += " " + " ".join(c["statement"][0].upper() + c["statement"][1:] + "."
                                          for c in doc["vehicle_file"])

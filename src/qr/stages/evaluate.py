@@ -67,6 +67,7 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
+    from .. import conventions
     from ..atomic import atomic_dir, write_json, write_text
     from ..config import to_dict
     from ..diagnose.crossfit import Estimates, fixed_settings
@@ -88,6 +89,7 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
+        conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command")
         settings = fixed_settings(filter_cfg, reports[i]) if reports else filter_cfg
         stored = Estimates(estimates[i], filter_cfg, reports[i], vehs[0]) if estimates and reports else None
         parts = []

@@ -18,16 +18,19 @@ from ..ingest.summary import flight_summary
 
 
 def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False,
-           report_offsets: bool = False) -> pd.DataFrame:
-    """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` and write ``out`` atomically.
+           report_offsets: bool = False, skip_checks=()) -> pd.DataFrame:
+    """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` (its conventions too:
+    :mod:`qr.conventions`, but ``skip_checks``) and write ``out`` atomically.
 
     With ``report_offsets`` (``qr ingest``) or ``align`` the gyro's and the rotor stream's time offsets
     against the motion capture are estimated (:mod:`qr.ingest.align`, ``attrs["time_offsets"]``); with
     ``align`` applied. The workflow's ingest does neither (nothing reads the offset there)."""
+    from .. import conventions
     from ..flight import write_flight
     from ..ingest import align as align_mod
 
     df = read_log(src, vehicle, fmt, topics)
+    conventions.require(df, vehicle, src, skip_checks, "--skip-check {name}")
     if align or report_offsets:
         found = align_mod.offsets(df, vehicle)
         if align:
@@ -38,7 +41,7 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
 
 
 def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None,
-                align: bool = False) -> pd.DataFrame:
+                align: bool = False, skip_checks=()) -> pd.DataFrame:
     """``qr ingest``: ``out`` checked (qr never replaces a file it did not write) before any work."""
     from ..outputs import check_out_file
     from ..vehicle import load_vehicle
@@ -47,7 +50,8 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, 
     if Path(out).suffix not in (".csv", ".parquet"):
         raise QrInputError(out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
                            "*.parquet")
-    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align, report_offsets=True)
+    return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align, report_offsets=True,
+                  skip_checks=skip_checks)
 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:

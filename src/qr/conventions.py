@@ -1,0 +1,425 @@
+"""A log's frames, orders, units and rotor numbering, checked from its physics before any identification.
+
+A log written in another convention than the spec's (``docs/spec/flight-log.md``: ENU world, FLU body,
+scalar-first quaternion body → world, metres, the vehicle file's rotor numbering) is still a plausible
+table of numbers, and the diagnosis would explain the mismatch with confident nonsense (a 1.6 N wind
+on a 0.7 kg vehicle).  Each check compares the log *as written* with the common mistakes, each read
+back into the spec's convention (a *reading*), on a relation every flight obeys whatever the
+vehicle's unknown effects:
+
+- **thrust axis**: the specific force the motion capture measures, ``p̈ + g e_z``, points along the
+  body z axis ``R e_z`` and scales with the rotor-map thrust, ``f ≈ k (T/m) R e_z + c`` (``k`` absorbs
+  a C_T or mass error, ``c`` a constant force such as wind).  Readings: the quaternion scalar-last, or
+  world → body; z down; NED world with an FRD body; positions in millimetres or centimetres.
+- **gyro** (where logged): the body rate the attitude implies equals the gyro up to a bias.  Readings:
+  an FRD gyro, a gyro in degrees per second.
+- **rotor layout**: the roll, pitch and yaw torque of the rotor map moves with the torque the attitude
+  needs, ``J ω̇ + ω × J ω``, on every axis.  Readings: every other numbering of the rotors, the yaw
+  signs reversed.
+
+A reading that explains the log far better than the log as written (the fit's residual ``RATIO``
+times smaller on some axis and no larger on any, or a numbering's summed correlation ``Z_LAYOUT``
+standard errors higher) is the likely mistake, and the check refuses the log in one line
+naming it and the fix.  Skipped, with the reason said, where the log cannot tell (a hover without
+manoeuvres; no gyro).  A user who knows better names the check in ``skip_checks``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from .airborne import airborne_mask
+from .errors import QrInputError
+from .flight import GYRO, HOVER_RATIO_LIMITS, POSITION, QUATERNION, ROTORS
+from .frames import G, NED_TO_ENU, FRD_TO_FLU, quat_to_rot, rot_to_quat
+
+CHECKS = ("thrust_axis", "gyro", "rotor_layout")
+SMOOTH_S = 0.2  # Savitzky-Golay window shared by every signal (s): mocap second derivatives need it
+MIN_ROWS = 200  # airborne samples needed for a check to speak
+MAX_ROWS = 60000  # a longer log is checked on evenly spaced stretches of this many samples in all
+STRETCH = 2000  # ... each this long
+MAX_LAG_S = 0.15  # the rotor stream's stamp may be this far off the motion capture's (s) for the layout check
+RATIO = 2.0  # a reading must cut the residual RMS by this factor to be the likely mistake
+Z_LAYOUT = 4.0  # standard errors by which another numbering's summed correlation must beat the written one
+
+
+@dataclass(frozen=True)
+class Reading:
+    """One way a log may have been written: ``read`` turns it into the spec's convention."""
+
+    name: str
+    mistake: str  # what the log looks like, for the error line
+    fix: str
+    read: Callable[[pd.DataFrame], pd.DataFrame]
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """What one check measured, and whether the log passes it."""
+
+    name: str
+    passed: bool
+    measured: str  # one sentence, from the numbers
+    mistake: str | None = None
+    fix: str | None = None
+
+    def as_dict(self) -> dict:
+        return {"check": self.name, "passed": self.passed, "measured": self.measured,
+                **({"mistake": self.mistake, "fix": self.fix} if not self.passed else {})}
+
+
+def _with(df: pd.DataFrame, cols: list[str], values) -> pd.DataFrame:
+    out = df.copy()
+    out[cols] = np.asarray(values, float).reshape(len(df), len(cols))
+    return out
+
+
+def _q(df):
+    return df[QUATERNION].to_numpy(float)
+
+
+def _ned_frd(df):
+    q = _q(df)
+    ok = np.isfinite(q).all(axis=1)
+    q2 = np.full_like(q, np.nan)
+    q2[ok] = rot_to_quat(NED_TO_ENU @ quat_to_rot(q[ok]) @ FRD_TO_FLU)
+    return _with(_with(df, POSITION, df[POSITION].to_numpy(float) @ NED_TO_ENU.T), QUATERNION, q2)
+
+
+THRUST_READINGS = (
+    Reading("scalar_last", "the quaternion looks scalar-last (x, y, z, w)",
+            "write it scalar-first as qw, qx, qy, qz",
+            lambda df: _with(df, QUATERNION, _q(df)[:, [3, 0, 1, 2]])),
+    Reading("world_to_body", "the quaternion looks like world -> body (the conjugate of the spec's)",
+            "give the attitude body -> world: negate qx, qy, qz",
+            lambda df: _with(df, QUATERNION, _q(df) * np.array([1.0, -1, -1, -1]))),
+    Reading("z_down", "the position looks z down (pz negated)",
+            "give positions in a z-up world frame (negate pz, and check the attitude's frame too)",
+            lambda df: _with(df, ["pz"], -df["pz"].to_numpy(float))),
+    Reading("ned_frd", "the log looks NED world with an FRD body (PX4's frames)",
+            "convert to ENU world / FLU body (p_enu = [y, x, -z]; R_enu_flu = T R_ned_frd F, see "
+            "docs/spec/flight-log.md), or read the log with qr ingest",
+            _ned_frd),
+    Reading("millimetres", "the positions look like millimetres",
+            "divide px, py, pz by 1000 so they are in metres",
+            lambda df: _with(df, POSITION, df[POSITION].to_numpy(float) / 1000)),
+    Reading("centimetres", "the positions look like centimetres",
+            "divide px, py, pz by 100 so they are in metres",
+            lambda df: _with(df, POSITION, df[POSITION].to_numpy(float) / 100)),
+)
+
+GYRO_READINGS = (
+    Reading("gyro_frd", "the gyro looks FRD (y and z negated against the spec's FLU body)",
+            "negate gy and gz", lambda df: _with(df, GYRO, df[GYRO].to_numpy(float) * np.array([1.0, -1, -1]))),
+    Reading("gyro_degrees", "the gyro looks like degrees per second",
+            "multiply gx, gy, gz by pi/180 so they are in rad/s",
+            lambda df: _with(df, GYRO, np.radians(df[GYRO].to_numpy(float)))),
+)
+
+
+# ---- signals on a uniform grid, per airborne stretch ---------------------------------------------------
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.view(np.int8), [0]])))
+    return list(zip(edges[::2], edges[1::2]))
+
+
+def _pieces(df: pd.DataFrame, vehicle) -> list[pd.DataFrame]:
+    """The airborne stretches long enough to differentiate, each on a uniform grid (dropouts bridged);
+    of a long log, evenly spaced stretches of ``MAX_ROWS`` samples in all (the conventions hold
+    throughout a log: a few minutes tell them)."""
+    from .segments import gap_threshold
+
+    t = df["t"].to_numpy(float)
+    if len(t) < MIN_ROWS:
+        return []
+    try:
+        air = airborne_mask(df, vehicle)
+    except Exception:  # a log the airborne detector cannot read: every row
+        air = np.ones(len(t), bool)
+    step, gap = float(np.median(np.diff(t))), gap_threshold(t)
+    out = []
+    for a, b in _runs(air):
+        rows = df.iloc[a:b]
+        tt = rows["t"].to_numpy(float)
+        cuts = np.flatnonzero(np.diff(tt) > gap) + 1
+        for part in np.split(np.arange(len(tt)), cuts):
+            if len(part) * 1.0 < 3 * SMOOTH_S / step + 10:
+                continue
+            sub = rows.iloc[part]
+            ts = sub["t"].to_numpy(float)
+            grid = np.arange(ts[0], ts[-1] + 0.5 * step, step)
+            cols = {}
+            for c in sub.columns:
+                y = sub[c].to_numpy(float)
+                ok = np.isfinite(y)
+                cols[c] = np.interp(grid, ts[ok], y[ok]) if ok.sum() >= 2 else np.full(len(grid), np.nan)
+            cols["t"] = grid
+            out.append(pd.DataFrame(cols))
+    if sum(len(p) for p in out) > MAX_ROWS:
+        short = [q for p in out for q in np.array_split(p, max(1, len(p) // STRETCH))]
+        keep = np.unique(np.linspace(0, len(short) - 1, MAX_ROWS // STRETCH).round().astype(int))
+        out = [short[i].reset_index(drop=True) for i in keep]
+    return out
+
+
+def _window(step: float) -> int:
+    return max(7, int(round(SMOOTH_S / step)) | 1)
+
+
+def _smooth(y: np.ndarray, step: float, deriv: int = 0) -> np.ndarray:
+    from scipy.signal import savgol_filter
+
+    return savgol_filter(y, _window(step), 3, deriv=deriv, delta=step, axis=0)
+
+
+def _unit(q: np.ndarray) -> np.ndarray:
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+# ---- thrust axis -----------------------------------------------------------------------------------------
+
+def _thrust_fit(pieces: list[pd.DataFrame], vehicle) -> "ThrustFit":
+    """Least squares of ``f ≈ k (T/m) R e_z + c - R (d ⊙ v_b)`` over ``pieces``: the thrust along body z,
+    a constant world force and a linear drag in body axes (every flight has some; fitted, it leaves the
+    readings' differences to decide)."""
+    F, X, V = [], [], []
+    for p in pieces:
+        step = float(p["t"].iloc[1] - p["t"].iloc[0])
+        pos = p[POSITION].to_numpy(float)
+        acc, vel = _smooth(pos, step, 2), _smooth(pos, step, 1)
+        f = acc + np.array([0.0, 0.0, G])
+        R = quat_to_rot(_unit(p[QUATERNION].to_numpy(float)))
+        T, _ = vehicle.rotors.thrust_torque(p[ROTORS].to_numpy(float))
+        thrust = _smooth(T, step)[:, None] / vehicle.mass * R[:, :, 2]
+        v_b = np.einsum("nji,nj->ni", R, vel)
+        drag = R * v_b[:, None, :]  # column j: R e_j v_bj
+        n = _window(step) // 2  # the filter's own edges
+        F.append(f[n:-n]), X.append(thrust[n:-n]), V.append(drag[n:-n])
+    f, x, dv = np.vstack(F), np.vstack(X), np.concatenate(V)
+    ok = np.isfinite(f).all(axis=1) & np.isfinite(x).all(axis=1) & np.isfinite(dv).all(axis=(1, 2))
+    f, x, dv = f[ok], x[ok], dv[ok]
+    A = np.zeros((len(f), 3, 7))
+    A[:, :, 0] = x
+    A[:, :, 1:4] = np.eye(3)
+    A[:, :, 4:7] = -dv
+    A = A.reshape(-1, 7)
+    sol, *_ = np.linalg.lstsq(A, f.ravel(), rcond=None)
+    r = (f.ravel() - A @ sol).reshape(-1, 3)
+    return ThrustFit(np.sqrt(np.mean(r**2, axis=0)), float(sol[0]), sol[1:4], len(f))
+
+
+@dataclass(frozen=True)
+class ThrustFit:
+    residual: np.ndarray  # RMS of the specific force's residual per world axis (m/s², the reading's length unit)
+    gain: float  # k: the rotor thrust's scale (1: the file's C_T and mass balance the flight)
+    constant: np.ndarray  # c (m/s²)
+    rows: int
+
+    @property
+    def plausible(self) -> bool:
+        """Thrust along +z at a gain a vehicle file can be off by, no constant force beyond half the weight."""
+        lo, hi = HOVER_RATIO_LIMITS
+        return lo <= self.gain <= hi and float(np.linalg.norm(self.constant)) < 0.5 * G
+
+    @property
+    def relative(self) -> np.ndarray:
+        """The residual per axis in units of the thrust's own scale (a reading that rescales lengths
+        rescales both)."""
+        return self.residual / self.gain / G if self.gain > 0 else np.full(3, np.inf)
+
+    @property
+    def total(self) -> float:
+        return float(np.sqrt(np.mean(self.relative**2)))
+
+    def beaten_by(self, other: "ThrustFit") -> bool:
+        """Does ``other`` explain the specific force ``RATIO`` times better on some axis, and no worse
+        on any (a mistake in one axis, as z down, shows on that axis alone)?"""
+        mine, theirs = self.relative, other.relative
+        return bool(np.all(theirs <= 1.1 * mine) and np.any(theirs * RATIO < mine))
+
+
+def _explained(fit: ThrustFit) -> str:
+    lo, hi = HOVER_RATIO_LIMITS
+    if fit.gain <= 0:
+        return "points against the rotor thrust"
+    if not lo <= fit.gain <= hi:
+        return f"needs the rotor thrust x{fit.gain:.3g} to balance it"
+    return f"follows the rotor thrust along body z to {100 * float(fit.relative.max()):.2g} % of g"
+
+
+def check_thrust_axis(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
+    if sum(len(p) for p in pieces) < MIN_ROWS:
+        return CheckResult("thrust_axis", True, "too few airborne samples to check the frames")
+    fit0 = _thrust_fit(pieces, vehicle)
+    alt = []
+    for reading in THRUST_READINGS:
+        fit = _thrust_fit([reading.read(p) for p in pieces], vehicle)
+        if fit.plausible:
+            alt.append((fit, reading))
+    measured = f"as written, the specific force the positions give {_explained(fit0)}"
+    if alt:
+        fit, best = min(alt, key=lambda a: a[0].total)
+        if not fit0.plausible or fit0.beaten_by(fit):
+            return CheckResult("thrust_axis", False, f"{measured}; read so, it {_explained(fit)}",
+                               best.mistake, best.fix)
+    # as written implausible, and no reading better: no convention explains the log (a synthetic table, a
+    # tether); not refused here: the diagnosis says when the model does not describe a flight
+    return CheckResult("thrust_axis", True, measured + ("" if fit0.plausible else "; no other reading explains it"))
+
+
+# ---- gyro -------------------------------------------------------------------------------------------------
+
+def _attitude_rates(p: pd.DataFrame, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Body rate and its derivative (N, 3) the attitude implies: ``ω = 2 vec(q⁻¹ ⊗ q̇)``."""
+    from .frames import quat_multiply
+
+    q = _unit(p[QUATERNION].to_numpy(float))
+    qd = _smooth(q, step, 1)
+    qs = _smooth(q, step)
+    w = 2 * quat_multiply(qs * np.array([1.0, -1, -1, -1]), qd)[:, 1:] / np.sum(qs**2, axis=1, keepdims=True)
+    return w, _smooth(w, step, 1)
+
+
+def _gyro_fit(pieces: list[pd.DataFrame]) -> tuple[float, float]:
+    """(residual RMS of gyro ≈ ω + bias, RMS of ω's variation) over ``pieces`` (rad/s)."""
+    W, Gy = [], []
+    for p in pieces:
+        step = float(p["t"].iloc[1] - p["t"].iloc[0])
+        w, _ = _attitude_rates(p, step)
+        n = _window(step) // 2
+        W.append(w[n:-n]), Gy.append(_smooth(p[GYRO].to_numpy(float), step)[n:-n])
+    w, g = np.vstack(W), np.vstack(Gy)
+    ok = np.isfinite(w).all(axis=1) & np.isfinite(g).all(axis=1)
+    w, g = w[ok], g[ok]
+    r = (g - g.mean(axis=0)) - (w - w.mean(axis=0))
+    return float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean((w - w.mean(axis=0)) ** 2)))
+
+
+def check_gyro(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
+    if not pieces or not all(c in pieces[0] for c in GYRO):
+        return CheckResult("gyro", True, "no gyro logged")
+    pieces = [p for p in pieces if np.isfinite(p[GYRO].to_numpy(float)).all()]
+    if sum(len(p) for p in pieces) < MIN_ROWS:
+        return CheckResult("gyro", True, "too few airborne samples with a gyro to check it")
+    r0, spread = _gyro_fit(pieces)
+    measured = (f"the gyro follows the attitude's rate with a residual of {r0:.3g} rad/s "
+                f"(the rate varies by {spread:.3g} rad/s)")
+    alt = []
+    for reading in GYRO_READINGS:
+        r, _ = _gyro_fit([reading.read(p) for p in pieces])
+        alt.append((r, reading))
+    r, best = min(alt, key=lambda a: a[0])
+    if r * RATIO < r0:
+        return CheckResult("gyro", False, f"{measured}; read as {best.name.replace('_', ' ')}, {r:.3g} rad/s",
+                           best.mistake, best.fix)
+    return CheckResult("gyro", True, measured)
+
+
+# ---- rotor layout -----------------------------------------------------------------------------------------
+
+def _torque_pairs(pieces: list[pd.DataFrame], vehicle) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per piece: (u² per rotor (N, n), the torque the attitude needs (N, 3)), both smoothed alike."""
+    out = []
+    J = np.asarray(vehicle.inertia, float)
+    for p in pieces:
+        step = float(p["t"].iloc[1] - p["t"].iloc[0])
+        w, wd = _attitude_rates(p, step)
+        need = wd * J + np.cross(w, w * J)
+        u2 = _smooth(p[ROTORS].to_numpy(float) ** 2, step)
+        n = _window(step) // 2
+        u2, need = u2[n:-n], need[n:-n]
+        ok = np.isfinite(u2).all(axis=1) & np.isfinite(need).all(axis=1)
+        out.append((u2[ok], need[ok]))
+    return out
+
+
+def _correlations(pairs, B: np.ndarray, lags) -> np.ndarray:
+    """Correlation of each torque axis of rotor map ``B`` (4 x n) with the needed torque, the rotor
+    stream shifted by each of ``lags`` (samples; the best lag on the summed correlation): a rotor stream
+    stamped late is a clock's error (qr ingest estimates it), not a numbering."""
+    best = None
+    for lag in lags:
+        A, N = [], []
+        for u2, need in pairs:
+            m = len(u2) - abs(lag)
+            if m <= 0:
+                continue
+            A.append(u2[max(lag, 0):max(lag, 0) + m]), N.append(need[max(-lag, 0):max(-lag, 0) + m])
+        tq, need = np.vstack(A) @ B[1:].T, np.vstack(N)
+        a, b = tq - tq.mean(axis=0), need - need.mean(axis=0)
+        den = np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
+        c = np.divide(np.sum(a * b, axis=0), den, out=np.zeros(3), where=den > 0)
+        if best is None or c.sum() > best.sum():
+            best = c
+    return best
+
+
+def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
+    if sum(len(p) for p in pieces) < MIN_ROWS:
+        return CheckResult("rotor_layout", True, "too few airborne samples to check the rotor layout")
+    pairs = _torque_pairs(pieces, vehicle)
+    step = float(pieces[0]["t"].iloc[1] - pieces[0]["t"].iloc[0])
+    rows = sum(len(u) for u, _ in pairs)
+    se = 1 / np.sqrt(max(rows / _window(step) - 3, 1.0))  # Fisher: a window's samples are one
+    reach = int(round(MAX_LAG_S / step))
+    lags = range(-reach, reach + 1, max(1, reach // 6))
+    B = vehicle.rotors.matrix
+    written = _correlations(pairs, B, lags)
+    measured = ("the rotor torque's correlation with the torque the attitude needs is "
+                + ", ".join(f"{c:.2f}" for c in written) + f" in roll, pitch, yaw (s.e. {se:.2f})")
+    n = B.shape[1]
+    best = None
+    for order in itertools.permutations(range(n)):
+        for yaw in (1.0, -1.0):
+            if order == tuple(range(n)) and yaw == 1.0:
+                continue
+            Bp = B[:, list(order)].copy()
+            Bp[3] *= yaw
+            c = _correlations(pairs, Bp, lags)
+            if best is None or c.sum() > best[0].sum():
+                best = (c, order, yaw)
+    c, order, yaw = best
+    if c.sum() - written.sum() > Z_LAYOUT * se * np.sqrt(3):
+        if order == tuple(range(n)):
+            mistake = "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"
+            fix = "flip every yaw_sign in the vehicle file's layout"
+        else:
+            cols = ", ".join(ROTORS[i] for i in order)
+            mistake = f"the rotor columns look numbered differently: the layout's rotors 1..{n} are the log's {cols}"
+            mistake += "" if yaw > 0 else ", with the yaw signs reversed"
+            fix = "reorder u1..u4 to the vehicle file's rotor numbering (or fix the layout in the vehicle file)"
+        return CheckResult("rotor_layout", False,
+                           measured + "; read so, " + ", ".join(f"{x:.2f}" for x in c), mistake, fix)
+    return CheckResult("rotor_layout", True, measured)
+
+
+RUNNERS = {"thrust_axis": check_thrust_axis, "gyro": check_gyro, "rotor_layout": check_rotor_layout}
+
+
+def check(df: pd.DataFrame, vehicle, skip=()) -> list[CheckResult]:
+    """Every convention check not in ``skip``, in ``CHECKS`` order."""
+    unknown = [str(x) for x in skip if x not in CHECKS]
+    if unknown:
+        raise QrInputError("skip_checks", f"unknown convention check '{unknown[0]}'", f"use one of {', '.join(CHECKS)}")
+    todo = [name for name in CHECKS if name not in skip]
+    pieces = _pieces(df, vehicle) if todo else []
+    return [RUNNERS[name](pieces, vehicle) for name in todo]
+
+
+def require(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = "diagnose.skip_checks=[{name}]"
+            ) -> list[CheckResult]:
+    """``check``, refusing the log (one line: the likely mistake and its fix) at the first failure;
+    ``how_to_skip``: the setting that turns a check off, as the user writes it (``{name}``: the check)."""
+    results = check(df, vehicle, skip)
+    for r in results:
+        if not r.passed:
+            raise QrInputError(path, f"{r.mistake} ({r.measured})",
+                               f"{r.fix}; or, if the log is right, skip this check with "
+                               + how_to_skip.format(name=r.name))
+    return results
