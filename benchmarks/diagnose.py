@@ -17,7 +17,6 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("QR_TRACKING", "off")
 
-from qr.config import vehicle_path  # noqa: E402
 from qr.stages.diagnose import run_diagnosis  # noqa: E402
 from qr.effects import parse_effect_spec  # noqa: E402
 from qr.sim.synth import SynthConfig, write_synth  # noqa: E402
@@ -25,7 +24,7 @@ from qr.vehicle import load_vehicle  # noqa: E402
 
 
 def case(tmp: Path, duration: float, rate: float, tag: str) -> float:
-    vehicle = load_vehicle(vehicle_path("asctec_hummingbird"))
+    vehicle = load_vehicle("asctec_hummingbird")
     effects = [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15"), parse_effect_spec("cg_offset:rx=0.01,ry=0")]
     t0 = time.perf_counter()
     write_synth(tmp / tag, vehicle, effects, SynthConfig(duration=duration, rate=rate, seed=1))

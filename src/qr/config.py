@@ -7,13 +7,11 @@ The Hydra stages (``qr filter | learn | simulate``) run through :func:`hydra_app
 from __future__ import annotations
 
 import functools
-import os
 from pathlib import Path
 
+from .shipped import CONF_DIR
+
 ROOT = Path(__file__).resolve().parents[2]
-# ``src/qr/conf`` is a link to the checkout's ``conf/``, so an installed qr (``pip install .``: the link's
-# files are package data) finds the same tree from any folder; ``QR_CONF`` points elsewhere.
-CONF_DIR = str(Path(os.environ.get("QR_CONF", Path(__file__).parent / "conf")).resolve())
 
 
 def compose(overrides=()):
@@ -133,14 +131,6 @@ def experiments(names) -> list[str]:
     group is selected once; its configs merge in list order), or none."""
     names = list(names)
     return [f"+experiment=[{','.join(names)}]"] if names else []
-
-
-def vehicle_path(name_or_path: str) -> Path:
-    """A vehicle given by name (``conf/vehicle/<name>.yaml``) or by path."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return Path(CONF_DIR) / "vehicle" / f"{name_or_path}.yaml"
 
 
 def compose_stage(overrides, stage: str, example: str):

@@ -18,8 +18,8 @@ import numpy as np
 
 from .allowed import is_number
 from .errors import QrInputError
-from .flight import HOVER_RATIO_LIMITS
 from .frames import GRAVITY, skew
+from .rotors import HOVER_RATIO_LIMITS
 
 
 def _as_slice(idx):

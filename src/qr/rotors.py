@@ -17,6 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 PLUS_YAW_SIGNS = (-1.0, 1.0, -1.0, 1.0)
+# the rotor map's median airborne thrust over the weight, m g, that a log may show: beyond it the speeds
+# are in another unit or the coefficients are wrong (qr.flight refuses the log; the thrust effects stop there)
+HOVER_RATIO_LIMITS = (1 / 3, 3.0)
 
 
 def plus_positions(arm_length: float) -> np.ndarray:

@@ -24,6 +24,7 @@ from .allowed import is_number
 from .atomic import plain, write_text
 from .errors import QrInputError, warn
 from .rotors import CommandMap, RotorMap
+from .shipped import shipped_vehicles, vehicle_file
 
 REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
 SPEED_UNITS = ("rpm", "rad_s")
@@ -256,7 +257,8 @@ _Loader.add_implicit_resolver(
 def _read_yaml(path: Path, chain: tuple = ()) -> dict:
     """The file's mapping, with ``extends:`` resolved (``chain``: the files that extend this one)."""
     if not path.exists():
-        raise QrInputError(path, "vehicle file does not exist", "check the path, or name a shipped vehicle (conf/vehicle/: asctec_hummingbird, ...)")
+        raise QrInputError(path, "vehicle file does not exist",
+                           f"check the path, or name a shipped vehicle ({', '.join(shipped_vehicles())})")
     if path.is_dir():
         raise QrInputError(path, "is a folder, not a vehicle file",
                            "give the vehicle's YAML file (e.g. conf/vehicle/NAME.yaml)")
@@ -307,12 +309,7 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
 def load_vehicle(path: str | Path) -> Vehicle:
     """A vehicle file, or a shipped vehicle by name (``asctec_hummingbird``: ``conf/vehicle/<name>.yaml``,
     found in an installed qr too)."""
-    from .config import CONF_DIR
-
-    path = Path(path)
-    if not path.is_file() and path.suffix not in (".yaml", ".yml") and str(path) == path.name:  # a bare name
-        shipped = Path(CONF_DIR) / "vehicle" / f"{path.name}.yaml"
-        path = shipped if shipped.is_file() else path
+    path = vehicle_file(path)
     return vehicle_from_dict(_read_yaml(path), path)
 
 

@@ -32,6 +32,7 @@ validate(config, "../schemas/config.schema.yaml")
 # the process that left it is gone (qr.procs).  Snakemake's own lock is Snakemake's (`--unlock`).
 from qr.config import experiments  # named experiments (conf/experiment/) as one Hydra override
 from qr.procs import remove_orphan_temporaries
+from qr.shipped import vehicle_file as find_vehicle
 
 remove_orphan_temporaries("results")
 
@@ -52,12 +53,17 @@ def raw_log(wildcards):
     return str(DATA_ROOT / s.get("dir", "") / (wildcards.flight + s.get("suffix", "")))
 
 
+def shipped_vehicle(name):
+    """A shipped vehicle's file in this workflow's conf/ (qr.shipped: how a name is found)."""
+    return str(find_vehicle(name, conf="conf"))
+
+
 def vehicle_file(set_name):
     """A shipped vehicle by name (conf/vehicle/), or a vehicle file's path (relative to the data set file)."""
     v = str(SETS[set_name]["vehicle"])
     if v.endswith((".yaml", ".yml")):
         return str(DATA_FILE.parent / v) if not Path(v).is_absolute() else v
-    return f"conf/vehicle/{v}.yaml"
+    return shipped_vehicle(v)
 
 
 def flights_of(set_name, pattern):
