@@ -236,7 +236,7 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
 
     outdir = Path(outdir)
     with tracking.run("diagnose", name, {"diagnose": doc["config"], "filter": doc.get("filter", {})},
-                      inputs=inputs) as run:
+                      inputs=inputs, description=doc["verdict"]) as run:
         run.metrics({**(metrics or {}), "effects_named": len(doc["effects"]),
                      "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
                      "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"],
@@ -248,10 +248,12 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
 
 
 def _rollout_metrics(ro: dict | None) -> dict:
-    """``rollout.<model>.<q>_at_<H>`` of the diagnosis's rollout block (qr.rollout.horizon_metrics)."""
+    """``rollout.<model>.<q>_at_<H>`` and ``..._ratio`` (to rate_frozen) of the diagnosis's rollout block."""
     from ..rollout import horizon_metrics
 
-    return horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.") if ro and ro.get("models") else {}
+    if not (ro and ro.get("models")):
+        return {}
+    return horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.", ratios=True)
 
 
 def _reports(nis_files):
