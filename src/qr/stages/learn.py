@@ -49,7 +49,7 @@ except ImportError:  # pragma: no cover
 STAGE = "learn"
 PARENT_FILE = ".mlflow_parent"
 RUNS_CSV = "runs.csv"
-LEARN_KEYS = ("target", "inputs", "dataset", "row")  # the config group `learn` (conf/learn/), logged as params
+LEARN_KEYS = ("target", "inputs", "dataset", "vehicle", "row")  # the group `learn` (conf/learn/), logged as params
 LOGGED = ("split", "model", "seed")
 
 
@@ -130,7 +130,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
     tags = {"qr.run": name}
     if parent_id:
         tags["mlflow.parentRunId"] = parent_id
-    table = datasets.read_table(learn["dataset"])  # a missing or wrong table: one line, before MLflow
+    table = datasets.read_table(learn["dataset"], learn.get("vehicle"))  # wrong: one line, before MLflow
     with tracking.run(STAGE, name, config=logged, inputs=[learn["dataset"]], tags=tags) as tracked:
         tracked.dataset(learn["dataset"], table)
         X, y = datasets.xy(table, inputs, target)
@@ -228,17 +228,24 @@ def _main(cfg) -> float:
     parent_id = parent.read_text().strip() if hc.mode.name == "MULTIRUN" and parent.exists() else None
     record = run(plain, out, job_name(plain, hc), parent_id)
     m = record["metrics"]
-    print(f"{record['name']}: {record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
+    sweep = hc.mode.name == "MULTIRUN"  # a job's line: its own settings, on a line of its own beside the bar
+    lead = f"\n{record['name']} ({' '.join(hc.overrides.task)})" if sweep else record["name"]
+    print(f"{lead}: {record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
           f"({100 * m['ratio']:.1f} % of nominal {m['nominal_rmse']:.4g}), "
           f"{'LEAKS TARGET, ' if record['leaks_target'] else ''}{m['train_time_s']:.2f} s", file=sys.stderr)
     return m["rmse"]
+
+
+def _precheck(cfg: dict) -> None:
+    """What a run needs before anything is written: a learning table (or state table) that exists."""
+    datasets.check_dataset(cfg["learn"]["dataset"])
 
 
 def main() -> None:
     """``qr learn`` / ``python -m qr.learn`` (``python -m qr.train``, the thesis-era name)."""
     from ..config import hydra_app
 
-    hydra_app("learn", _main)
+    hydra_app("learn", _main, _precheck)
 
 
 
