@@ -116,8 +116,8 @@ def report(doc: dict, figure: str | None) -> str:
     if figure:
         L += [f"![MAE against the time ahead]({figure})", "", f"*{FIGURE_CAPTION}*", ""]
     L += ["## How the error grows", "",
-          f"MAE at h = {' / '.join(map(str, hs))} steps · SimErr (the sum over h = 1..{H}). Open-loop rollout from every "
-          f"sample of the filtered estimate, step = the log's own ({doc['dt'] * 1e3:.2f} ms; {lo * 1e3:.2f}-"
+          f"MAE at h = {' / '.join(map(str, hs))} steps · SimErr (the sum over h = 1..{H}). Open-loop rollout from "
+          f"every sample of the filtered estimate, step = the log's own ({doc['dt'] * 1e3:.2f} ms; {lo * 1e3:.2f}-"
           f"{hi * 1e3:.2f} ms), driven by the measured rotor speeds; truth: the measured position and attitude, "
           "the estimated velocity and body rate.", "", *growth, ""]
     if len(doc["per_flight"]) > 1:

@@ -125,7 +125,9 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         write_text(tmp / "report.md", report(doc, "figures/rollout_mae.png" if figures else None))
         write_json(tmp / "evaluation.json", doc)
     if track:
-        track_evaluation(track, doc, [*flights, *vehicles], out)
+        from ..shipped import vehicle_file
+
+        track_evaluation(track, doc, [*flights, *map(vehicle_file, vehicles)], out)  # (a vehicle by name: its file)
     say(f"wrote {out}/evaluation.json")
     return doc
 
@@ -202,7 +204,8 @@ def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
         doc = json.loads((Path(d) / "evaluation.json").read_text())
         H, models, label = doc["horizon"], doc["models"], labels(doc)
         for model, block in models.items():
-            row = {"set": name, "held-out flights": len(doc["flights"]), "model": label[model]}
+            row = {"set": name, "held-out flights": len(doc["flights"]), "model": label[model],
+                   "horizon (s)": round(H * doc["dt"], 6)}
             for q in rollout.QUANTITIES:
                 row[f"{q}@{H}"] = rollout.at(block, H, q)
                 row[f"{q} / rate_frozen"] = ratio(models, model, q, H)
