@@ -151,8 +151,11 @@ DESCRIPTIONS = {
     "stability": "Eq. 5.15 stability analysis of the closed loop with each learned linear model.",
 }
 NOTE = "mlflow.note.content"  # an experiment's or a run's description (Markdown in the UI)
-# MLflow 3 opens an experiment without this tag in its GenAI view (traces, no runs table): qr's are model training
+# qr's experiments are model training (MLflow 3 opens in its GenAI view: traces, no runs table).  The tag
+# declares it; MLflow 3.17's UI follows its GenAI / Model training switch instead, which an address's
+# ``workflowType=machine_learning`` sets (UI_QUERY: make mlflow-ui prints such an address)
 KIND = {"mlflow.experimentKind": "custom_model_development"}
+UI_QUERY = "workflowType=machine_learning"
 # the metrics each stage's runs table leads with: MLflow shows none by default (only a shared view, a URL's
 # viewStateShareKey naming an experiment tag mlflow.sharedViewState.<key>, selects columns)
 RESULTS_VIEW = "results"
@@ -168,25 +171,29 @@ LEADING_PARAMS = {"learn": ["inputs", "target", "model.kind", "model.layers", "m
 
 def _results_view(stage: str) -> str:
     """The shared view (JSON, as the UI's Share button stores it) whose runs table leads with the stage's
-    metrics; the sweeps' jobs shown under their parent."""
+    metrics, in this order."""
     cols = [f"metrics.`{m}`" for m in LEADING_METRICS.get(stage, [])]
     cols += [f"params.`{p}`" for p in LEADING_PARAMS.get(stage, [])]
-    return json.dumps({"selectedColumns": cols, "orderByKey": "attributes.start_time", "orderByAsc": False})
+    return json.dumps({"selectedColumns": cols, "columnOrder": cols, "orderByKey": "attributes.start_time",
+                       "orderByAsc": False})
 
 
 def results_view_url(base: str, experiment: str) -> str:
-    """The MLflow UI address of an experiment's runs table in its results view."""
-    return f"{base}/#/experiments/{experiment}/runs?viewStateShareKey={RESULTS_VIEW}"
+    """The MLflow UI address of an experiment's runs table in its results view (model-training mode).
+    ``base`` "": the link an experiment's description holds (a query of its own before the ``#``, so the
+    UI loads the view afresh even from the experiment's own page)."""
+    return f"{base or '?view=' + RESULTS_VIEW}#/experiments/{experiment}/runs?{UI_QUERY}&viewStateShareKey={RESULTS_VIEW}"
 
 
 def _experiment_tags(stage: str, experiment: str | None) -> dict:
-    """Kind, description and (for a stage with leading metrics) the results view, linked from the description."""
+    """Kind, description and (for a stage with leading metrics) the results view, linked first in the
+    description (the UI shows its first line)."""
     tags, note = dict(KIND), DESCRIPTIONS.get(stage, "")
     if stage in LEADING_METRICS:
         tags[f"mlflow.sharedViewState.{RESULTS_VIEW}"] = _results_view(stage)
         if experiment is not None:
-            note += (f"\n\n**[Open the runs with their results]({results_view_url('', experiment).lstrip('/')})**: "
-                     f"the table then leads with {', '.join(LEADING_METRICS[stage][:3])}, ...")
+            note = (f"[Runs with their results]({results_view_url('', experiment)}) (the table leads with "
+                    f"{', '.join(LEADING_METRICS[stage][:3])}, ...) · {note}")
     return {**tags, **({NOTE: note} if note else {})}
 
 

@@ -46,11 +46,12 @@ def test_run_has_provenance_and_status(tmp_path, monkeypatch):
     # view (not its GenAI one) and links a view of its runs table that leads with the stage's metrics
     eid = tracking.experiment_id("diagnose")
     exp = client.get_experiment(eid)
-    assert exp.tags[tracking.NOTE].startswith(tracking.DESCRIPTIONS["diagnose"])
-    assert f"(#/experiments/{eid}/runs?viewStateShareKey=results)" in exp.tags[tracking.NOTE]
+    assert exp.tags[tracking.NOTE].startswith(f"[Runs with their results](?view=results#/experiments/"
+                                              f"{eid}/runs?workflowType=machine_learning&viewStateShareKey=results)")
+    assert exp.tags[tracking.NOTE].endswith(tracking.DESCRIPTIONS["diagnose"])
     assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
     view = json.loads(exp.tags["mlflow.sharedViewState.results"])
-    assert view["selectedColumns"][:2] == ["metrics.`effects_named`", "metrics.`nominal_loss`"]
+    assert view["selectedColumns"][:2] == ["metrics.`effects_named`", "metrics.`nominal_loss`"] == view["columnOrder"][:2]
     # a run's description: its page shows it first
     with tracking.run("unit", "described", {}, description="Named linear_drag.") as r:
         r.metrics({"rmse": 0.1})

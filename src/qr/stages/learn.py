@@ -157,6 +157,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
         write_json(run_json, plain(record))
         tracked.tags({"qr.leaks_target": str(leaks).lower(), "qr.kind": model.kind, "qr.target": target})
         tracked.metrics(metrics)
+        tracked.describe(outcome(record))
         if model.kind == "gpr":
             tracked.metrics(_hyper_metrics(model.info["hyperparameters"], target))
         for f in sorted(Path(model_dir).iterdir()):
@@ -230,10 +231,16 @@ def _main(cfg) -> float:
     m = record["metrics"]
     sweep = hc.mode.name == "MULTIRUN"  # a job's line: its own settings, on a line of its own beside the bar
     lead = f"\n{record['name']} ({' '.join(hc.overrides.task)})" if sweep else record["name"]
-    print(f"{lead}: {record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
-          f"({100 * m['ratio']:.1f} % of nominal {m['nominal_rmse']:.4g}), "
-          f"{'LEAKS TARGET, ' if record['leaks_target'] else ''}{m['train_time_s']:.2f} s", file=sys.stderr)
+    print(f"{lead}: {outcome(record)}, {m['train_time_s']:.2f} s", file=sys.stderr)
     return m["rmse"]
+
+
+def outcome(record: dict) -> str:
+    """A run's result in words, from its numbers (its line on the terminal, its MLflow description)."""
+    m = record["metrics"]
+    return (f"{record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
+            f"({100 * m['ratio']:.1f} % of nominal {m['nominal_rmse']:.4g})"
+            + (", LEAKS TARGET" if record["leaks_target"] else ""))
 
 
 def _precheck(cfg: dict) -> None:
@@ -372,6 +379,8 @@ class LearnSweep(Callback):
             metrics.update({"best_rmse": b["rmse"], "best_ratio": b["ratio"],
                             "best_row": float(b["row"]) if pd.notna(b["row"]) else math.nan})
             self._run.tags({"qr.best_run": b["name"]})
+            self._run.describe(f"{len(runs)} runs; the best that does not leak its target: {b['name']}, test RMSE "
+                               f"{b['rmse']:.4g} ({100 * b['ratio']:.1f} % of the nominal model's)")
         self._run.metrics(metrics)
         self._run.artifact(out / RUNS_CSV)
         self._close(None)
