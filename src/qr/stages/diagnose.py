@@ -64,11 +64,16 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+    from ..flight import read_flight
+
+    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
+    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
+    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
+    measured = [read_flight(f) for f in flights]
 
     from ..atomic import write_json
     from ..config import to_dict
     from ..estimation.settings import resolve as resolve_filter
-    from ..flight import read_flight
     from ..segments import flight_segments
     from ..diagnose.coefficients import coefficient_checks
     from ..diagnose.crossfit import Estimates, prepare_flight
@@ -82,9 +87,6 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
     resolve_filter(to_dict(cfg.filter))  # the filter settings too, before any work
-    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
-    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
-    measured = [read_flight(f) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
     need = (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction

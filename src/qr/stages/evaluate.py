@@ -65,24 +65,27 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
+    from ..flight import read_flight
+    from ..vehicle import load_vehicle
+
+    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
+    names = model_names([str(v) for v in vehicles])
+    vehs = [load_vehicle(v) for v in vehicles]
+    measured = [read_flight(f) for f in flights]
+
     from ..atomic import atomic_dir, write_json, write_text
     from ..config import to_dict
     from ..diagnose.crossfit import Estimates, fixed_settings
     from ..estimation import estimate
     from ..estimation.settings import resolve as resolve_filter
-    from ..flight import read_flight
     from ..segments import flight_segments
-    from ..vehicle import load_vehicle
 
     say = log or (lambda msg: print(f"qr evaluate: {msg}", file=sys.stderr))
     cfg = _compose(overrides)
     ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
     filter_cfg = to_dict(cfg.filter)
     resolve_filter(filter_cfg)
-    names = model_names([str(v) for v in vehicles])
-    vehs = [load_vehicle(v) for v in vehicles]
     models = models_of(vehs, names)
-    measured = [read_flight(f) for f in flights]
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
