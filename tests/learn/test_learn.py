@@ -223,6 +223,8 @@ def test_the_readme_sweep_without_a_data_set_names_the_key_and_writes_nothing(tm
                                                    "learning table does not exist; fix: give learn.dataset=PATH")
     assert "learn.vehicle=" in lines[0]
     assert list(tmp_path.iterdir()) == []  # no results/, no Hydra folder, no MLflow store
+    res = _qr_elsewhere(tmp_path, "learn", "-m", "model=ann", "model.layers=1,2", "learn.inputs=[v_bb]")
+    assert res.returncode == 2 and "unknown input group 'v_bb'" in res.stderr and list(tmp_path.iterdir()) == []
 
 
 def test_the_readme_sweep_from_another_folder_on_the_state_table_qr_filter_writes(tmp_path):

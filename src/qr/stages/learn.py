@@ -244,7 +244,10 @@ def outcome(record: dict) -> str:
 
 
 def _precheck(cfg: dict) -> None:
-    """What a run needs before anything is written: a learning table (or state table) that exists."""
+    """What a run needs, checked before anything is written: a known target and inputs, a learning table
+    (or state table) that exists."""
+    datasets.check_target(cfg["learn"]["target"])
+    datasets.check_inputs(cfg["learn"]["inputs"])
     datasets.check_dataset(cfg["learn"]["dataset"])
 
 
