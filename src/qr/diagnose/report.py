@@ -334,7 +334,9 @@ def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
     axs[-1].set_xlabel("t (s), held-out part" if len(spans) == 1 else
                        f"held-out time (s) of {len(spans)} flights or segments, one after another (shaded alternately)")
     figures.save(fig, figdir / "residual_vs_effects.png")
-    out["Residual force and torque on held-out data, and what the named effects explain"] = "residual_vs_effects.png"
+    out["Held-out residual force and torque of the nominal model (grey; flights one after another, shaded "
+        "alternately) and what the named effects explain (red): where red follows grey, a named effect "
+        "accounts for it"] = "residual_vs_effects.png"
 
     fig, axs = figures.subplots(1, 2, figsize=(9, 3.2))
     for key, c in (("nominal", "grey"), ("extended", "C3")):
