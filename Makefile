@@ -40,6 +40,7 @@ cluster-local: install
 
 # Browse the runs: one experiment per stage (qr-ingest, qr-filter, qr-learn, ...).  Ctrl-C stops it.
 mlflow-ui: install
+	@echo "Open http://$(MLFLOW_HOST):$(MLFLOW_PORT)/#/experiments?workflowType=machine_learning (each experiment's description links its runs with their results)"
 	MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false $(VENV)/bin/mlflow ui --backend-store-uri $(MLFLOW_STORE) \
 	    --host $(MLFLOW_HOST) --port $(MLFLOW_PORT) --workers 1
 

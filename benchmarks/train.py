@@ -23,12 +23,11 @@ import numpy as np  # noqa: E402
 
 def data():
     from qr import datasets
-    from qr.config import vehicle_path
     from qr.effects import parse_effect_spec
     from qr.sim.synth import SynthConfig, simulate_truth
     from qr.vehicle import load_vehicle
 
-    vehicle = load_vehicle(vehicle_path("asctec_hummingbird"))
+    vehicle = load_vehicle("asctec_hummingbird")
     truth = simulate_truth(vehicle, [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.1")],
                            SynthConfig(duration=60.0, seed=1))
     table = datasets.flight_table(truth, vehicle, "bench")

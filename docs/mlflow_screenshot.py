@@ -5,10 +5,13 @@
 
 Starts ``mlflow ui`` as ``make mlflow-ui`` does (127.0.0.1, one worker, job execution off) on a free
 port, drives Debian's Chromium (``apt-get install chromium``) through the DevTools protocol
-(aiohttp, which MLflow already brings): the experiment list (one experiment per stage), then the
-learning runs with their RMSE, ratio to the nominal model and inputs, the sweeps expanded into
-their jobs.  The two views are stacked into one PNG, reduced to a palette to stay small.  The
-server and the browser are stopped afterwards (their whole process groups), also on errors.
+(aiohttp, which MLflow already brings), as a user goes: the address `make mlflow-ui` prints (the
+experiment list, in MLflow's model-training mode), then the link that leads the learning experiment's
+description, which opens its runs with their results (RMSE, ratio to the nominal model, inputs); the
+user's two clicks: the assistant panel closed, the sweeps expanded into their jobs.  No column is
+picked by hand: the results view is qr's (qr.tracking).  The two views are stacked into one PNG,
+reduced to a palette to stay small.  The server and the browser are stopped afterwards (their whole
+process groups), also on errors.
 """
 
 from __future__ import annotations
@@ -33,8 +36,6 @@ ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--hide-scrollbars", "--window-size=1440,900"]
-COLUMNS = ["Dataset", "Source", "Models",  # hidden (they are shown by default and empty here)
-           "rmse", "ratio", "inputs", "target", "model.layers", "model.neurons", "model.activation"]
 
 
 def free_port() -> int:
@@ -114,33 +115,34 @@ CLICK_TEXT = """(() => {{ const el = Array.from(document.querySelectorAll('{scop
 async def capture(base: str, experiment_id: str, chromium_port: int) -> list[bytes]:
     import aiohttp
 
+    from qr.tracking import UI_QUERY
+
     tabs = json.loads(wait_http(f"http://127.0.0.1:{chromium_port}/json/list", "Chromium"))
     ws_url = next(t for t in tabs if t["type"] == "page")["webSocketDebuggerUrl"]
     async with aiohttp.ClientSession() as session, session.ws_connect(ws_url, max_msg_size=0) as ws:
         page = Page(ws)
         await page.call("Page.enable")
         await page.call("Runtime.enable")
-        # the runs of the learning stage; the UI opens in its GenAI mode: switch to model training
-        await page.goto(f"{base}/#/experiments/{experiment_id}/runs", "document.body.innerText.includes('matching runs')",
-                        "the runs table")
+        # the experiment list: one experiment per stage
+        await page.goto(f"{base}/#/experiments?{UI_QUERY}", "document.body.innerText.includes('qr-learn')",
+                        "the experiments")
+        experiments = await page.png()
+        # the learning experiment's page; its description's first link opens the runs with their results
+        # (in a new tab: followed here in this one)
+        await page.goto(f"{base}/#/experiments/{experiment_id}/runs?{UI_QUERY}",
+                        "document.body.innerText.includes('matching runs')", "the runs table")
+        link = await page.js("(Array.from(document.querySelectorAll('a')).find(a => a.innerText.includes("
+                             "'Runs with their results')) || {}).href")
+        if not link:
+            raise SystemExit("mlflow_screenshot: the experiment's description has no link to its results view")
+        await page.call("Page.navigate", url="about:blank")
+        await page.goto(link, "document.body.innerText.includes('matching runs')", "the results view")
         await page.js("(() => { const b = document.querySelector('button[aria-label=Close]'); if (b) b.click(); })()")
-        await page.js(CLICK_TEXT.format(scope="*", text="Model training"))
-        await page.until("document.body.innerText.includes('matching runs')", "the runs table")
-        await asyncio.sleep(1.5)
-        await page.js("Array.from(document.querySelectorAll('button')).find(b => b.innerText.trim() === 'Columns')"
-                      ".click(); true")
-        await page.until("document.querySelector('[data-radix-popper-content-wrapper]')", "the column chooser")
-        for col in COLUMNS:
-            await page.js(CLICK_TEXT.format(scope="[data-radix-popper-content-wrapper] *", text=col))
-        await page.js("document.dispatchEvent(new KeyboardEvent('keydown', {key: 'Escape', bubbles: true}))")
         await asyncio.sleep(1)
         await page.js("Array.from(document.querySelectorAll('[role=row] button.du-bois-light-btn-link'))"
                       ".forEach(b => b.click())")  # expand every sweep into its jobs
         await asyncio.sleep(3)
         runs = await page.png()
-        # the experiment list: one experiment per stage
-        await page.goto(f"{base}/#/experiments", "document.body.innerText.includes('qr-ingest')", "the experiments")
-        experiments = await page.png()
     return [experiments, runs]
 
 

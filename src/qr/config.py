@@ -7,13 +7,11 @@ The Hydra stages (``qr filter | learn | simulate``) run through :func:`hydra_app
 from __future__ import annotations
 
 import functools
-import os
 from pathlib import Path
 
+from .shipped import CONF_DIR
+
 ROOT = Path(__file__).resolve().parents[2]
-# ``src/qr/conf`` is a link to the checkout's ``conf/``, so an installed qr (``pip install .``: the link's
-# files are package data) finds the same tree from any folder; ``QR_CONF`` points elsewhere.
-CONF_DIR = str(Path(os.environ.get("QR_CONF", Path(__file__).parent / "conf")).resolve())
 
 
 def compose(overrides=()):
@@ -135,12 +133,14 @@ def experiments(names) -> list[str]:
     return [f"+experiment=[{','.join(names)}]"] if names else []
 
 
-def vehicle_path(name_or_path: str) -> Path:
-    """A vehicle given by name (``conf/vehicle/<name>.yaml``) or by path."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return Path(CONF_DIR) / "vehicle" / f"{name_or_path}.yaml"
+def _key(override: str) -> str:
+    return override.split("=")[0].lstrip("+~")
+
+
+def _stage_filter(stage: str, overrides: list[str]) -> str:
+    """The filter ``<stage>.filter`` names: the last override of it, else its structured default."""
+    given = [o.split("=", 1)[1] for o in overrides if "=" in o and _key(o) == f"{stage}.filter"]
+    return given[-1] if given else schemas()[stage].filter
 
 
 def compose_stage(overrides, stage: str, example: str):
@@ -150,9 +150,13 @@ def compose_stage(overrides, stage: str, example: str):
 
     overrides = list(overrides)
     try:
-        cfg = compose(overrides)
-        if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
-            cfg = compose(overrides + [f"filter={cfg[stage].filter}"])
+        if any(_key(o) == "filter" for o in overrides):
+            cfg = compose(overrides)
+        else:  # composed once (Hydra takes ~0.5 s), with the filter the stage's key names ...
+            named = _stage_filter(stage, overrides)
+            cfg = compose(overrides + [f"filter={named}"])
+            if cfg[stage].filter != named:  # ... again where a named experiment chose another
+                cfg = compose(overrides + [f"filter={cfg[stage].filter}"])
     except Exception as e:  # Hydra's errors are long; the first line says what is wrong
         mine = _type_error(e, overrides)
         if mine is not None:
@@ -162,12 +166,28 @@ def compose_stage(overrides, stage: str, example: str):
     return cfg
 
 
-def hydra_app(stage: str, task) -> None:
+def _first_job(args: list[str]) -> list[str]:
+    """The overrides of a command line's first job: each sweep's first value, Hydra's own keys left out."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    out = []
+    for o in OverridesParser.create().parse_overrides([a for a in args if not a.startswith("-")]):
+        if o.key_or_group.startswith(("hydra/", "hydra.")):
+            continue
+        out.append(f"{o.get_key_element()}={next(iter(o.sweep_string_iterator()))}" if o.is_sweep_override()
+                   else o.input_line)
+    return out
+
+
+def hydra_app(stage: str, task, precheck=None) -> None:
     """Run ``task(cfg)`` as stage ``stage``'s Hydra app (overrides, ``-m`` sweeps, ``--help``, ``--cfg``).
 
     A user mistake (:class:`qr.errors.QrInputError`) is one line and exit status 2, as everywhere in
-    ``qr``; Hydra would print a traceback.  ``functools.wraps`` keeps ``task``'s module, from which
-    Hydra names the job (the stage: ``learn``'s sweep callback acts only on its own multiruns).
+    ``qr``; Hydra would print a traceback.  Before Hydra makes a run or sweep folder (or a sweep its
+    MLflow parent run), the first job's config is composed: a wrong type of a structured key, or what
+    ``precheck(cfg)`` (a plain dict) refuses, ends there with nothing written.  ``functools.wraps``
+    keeps ``task``'s module, from which Hydra names the job (the stage: ``learn``'s sweep callback acts
+    only on its own multiruns).
     """
     import sys
 
@@ -185,12 +205,20 @@ def hydra_app(stage: str, task) -> None:
 
     register_schemas()
     args = sys.argv[1:]
-    if not any(a.startswith("-") for a in args):  # a single run (not a sweep, --cfg, --help): a wrong type of
-        try:                                      # a structured key is qr's one line, not Hydra's block
-            compose(args)
+    if {a for a in args if a.startswith("-")} <= {"-m", "--multirun"}:  # a run or a sweep (not --cfg, --help)
+        try:
+            first = _first_job(args)
+            cfg = compose(first)
         except Exception as e:
-            mine = _type_error(e, args)
+            mine = _type_error(e, first) if "first" in locals() else None
             if mine is not None:
                 print(f"qr {stage}: error: {mine}", file=sys.stderr)
+                sys.exit(EXIT_BAD_INPUT)
+            cfg = None  # Hydra says what is wrong, as it parses the command line itself
+        if cfg is not None and precheck is not None:
+            try:
+                precheck(to_dict(cfg))
+            except QrInputError as e:
+                print(f"qr {stage}: error: {e}", file=sys.stderr)
                 sys.exit(EXIT_BAD_INPUT)
     hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

@@ -166,17 +166,43 @@ def write_table(table: pd.DataFrame, path) -> None:
         table.to_parquet(tmp, index=False)
 
 
-def read_table(path) -> pd.DataFrame:
+DATASET_FIX = ("give learn.dataset=PATH: a learning table (the workflow's results/learn/<set>/dataset.parquet) or "
+               "the state table `qr filter` writes (filter.out=PATH) with learn.vehicle=V.yaml")
+
+
+def check_dataset(path) -> Path:
+    """The path of a learning table or state table that exists (one line naming the key otherwise)."""
     path = Path(path)
-    if not path.exists():
-        raise QrInputError(path, "learning table does not exist",
-                           "build it with `snakemake --cores 2 results/learn/<set>/dataset.parquet` "
-                           "(or qr.datasets.write_table) and pass dataset=PATH")
-    table = pd.read_parquet(path)
-    missing = [c for c in ["flight", "t", *columns(GROUPS), *target_columns("f_a"), *target_columns("tau_a")]
-               if c not in table.columns]
+    if not path.is_file():
+        raise QrInputError(path, "learning table does not exist" if not path.exists() else "is not a file",
+                           DATASET_FIX)
+    return path
+
+
+def read_table(path, vehicle=None) -> pd.DataFrame:
+    """A learning table; or one built from the state table ``qr filter`` writes (labels with ``vehicle``:
+    a :class:`qr.vehicle.Vehicle`, a vehicle file or a shipped vehicle's name)."""
+    from .states import COLUMNS as STATE_COLUMNS
+
+    path = check_dataset(path)
+    try:
+        table = pd.read_parquet(path)
+    except Exception:  # pyarrow's errors vary: not Parquet, truncated, ...
+        raise QrInputError(path, "is not a Parquet table", DATASET_FIX) from None
+    need = ["flight", "t", *columns(GROUPS), *target_columns("f_a"), *target_columns("tau_a")]
+    missing = [c for c in need if c not in table.columns]
+    if missing and all(c in table.columns for c in STATE_COLUMNS):
+        if vehicle is None:
+            raise QrInputError(path, "is a state table: its labels f_a, tau_a depend on the vehicle",
+                               "name it: learn.vehicle=V.yaml (or a shipped vehicle's name)")
+        from .flight import check_hover_ratio
+        from .vehicle import Vehicle, load_vehicle
+
+        vehicle = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
+        check_hover_ratio(table, vehicle, path)  # labels with another vehicle's numbers: refused, not learnt
+        return build_table({path.stem: table}, vehicle)
     if missing:
-        raise QrInputError(path, f"not a learning table: lacks {missing[:4]}", "build it with qr.datasets.build_table")
+        raise QrInputError(path, f"neither a learning table nor a state table: lacks {missing[:4]}", DATASET_FIX)
     return table
 
 

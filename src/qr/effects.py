@@ -18,8 +18,8 @@ import numpy as np
 
 from .allowed import is_number
 from .errors import QrInputError
-from .flight import HOVER_RATIO_LIMITS
 from .frames import GRAVITY, skew
+from .rotors import HOVER_RATIO_LIMITS
 
 
 def _as_slice(idx):
@@ -107,6 +107,7 @@ class Effect:
     axes: tuple[int, ...]  # rows of [f_a; tau_a] the term can touch
     first_order: bool = False  # the term is a first-order approximation of the physics
     doc: str = ""
+    meaning: str = ""  # what it is, in a reader's words (reports name an effect by it)
 
     def term(self, params: dict, s: Signals, vehicle) -> np.ndarray:
         """``(N, 6)`` force and torque added to ``[f_a; tau_a]``."""
@@ -258,37 +259,53 @@ def _blade_flapping(s, v):
 F, TQ, ALL = (0, 1, 2), (3, 4, 5), (0, 1, 2, 3, 4, 5)
 CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("linear_drag", ("kx", "ky", "kz"), ("N s/m",) * 3, (0, 0, 0), _linear_drag, F,
-           doc="force -diag(k) v_b"),
+           doc="force -diag(k) v_b",
+           meaning="air drag proportional to the body velocity"),
     Effect("quadratic_drag", ("cx", "cy", "cz"), ("N s^2/m^2",) * 3, (0, 0, 0), _quadratic_drag, F,
-           doc="force -c ⊙ |v_b| ⊙ v_b"),
+           doc="force -c ⊙ |v_b| ⊙ v_b",
+           meaning="air drag growing with the square of the body velocity"),
     Effect("rotor_drag", ("k",), ("N s/m per rotor-speed unit",), (0,), _rotor_drag, (0, 1),
-           doc="force -k Ω [v_bx, v_by, 0], Ω = Σ u_i"),
+           doc="force -k Ω [v_bx, v_by, 0], Ω = Σ u_i",
+           meaning="a horizontal force growing with the rotor speeds and the body velocity (the rotors' drag)"),
     Effect("wind_force", ("fx", "fy", "fz"), ("N",) * 3, (0, 0, 0), _wind_force, F,
-           doc="force R^T [fx, fy, fz] (constant in the world frame)"),
+           doc="force R^T [fx, fy, fz] (constant in the world frame)",
+           meaning="a constant force in the world frame (wind, or a tilted motion-capture vertical)"),
     Effect("body_force_bias", ("bx", "by", "bz"), ("N",) * 3, (0, 0, 0), _body_force_bias, F,
-           doc="force [bx, by, bz] (constant in the body frame)"),
+           doc="force [bx, by, bz] (constant in the body frame)",
+           meaning="a constant force in the body frame (along z: a thrust offset)"),
     Effect("thrust_gain", ("gain",), ("-",), (1,), _thrust_gain, (2, 3, 4),
-           doc="force (gain-1)[0,0,T], torque (gain-1)[Γx,Γy,0]"),
+           doc="force (gain-1)[0,0,T], torque (gain-1)[Γx,Γy,0]",
+           meaning="every rotor's thrust scaled: the thrust coefficient C_T times this gain (1: as the file)"),
     Effect("mass_error", ("dm",), ("kg",), (0,), _mass_error, F,
-           doc="force -dm (a_b - R^T g)"),
+           doc="force -dm (a_b - R^T g)",
+           meaning="the mass off by dm (the true mass is m + dm)"),
     Effect("ground_effect", ("k",), ("m^2",), (0,), _ground_effect, (2,),
-           doc="force k T / p_z^2 [0, 0, 1]"),
+           doc="force k T / p_z^2 [0, 0, 1]",
+           meaning="extra thrust near the floor (k T / height²)"),
     Effect("motor_imbalance", ("d1", "d2", "d3", "d4"), ("-",) * 4, (0, 0, 0, 0), _motor_imbalance, (2, 3, 4),
-           doc="rotor i thrust C_T (1 + d_i) u_i^2"),
+           doc="rotor i thrust C_T (1 + d_i) u_i^2",
+           meaning="one rotor's thrust off by the share d_i against the others"),
     Effect("cg_offset", ("rx", "ry"), ("m", "m"), (0, 0), _cg_offset, (3, 4),
-           doc="torque [-ry T, rx T, 0]"),
+           doc="torque [-ry T, rx T, 0]",
+           meaning="the centre of gravity off the rotor centre: the thrust rolls and pitches the body"),
     Effect("torque_bias", ("tx", "ty", "tz"), ("N m",) * 3, (0, 0, 0), _torque_bias, TQ,
-           doc="torque [tx, ty, tz]"),
+           doc="torque [tx, ty, tz]",
+           meaning="a constant torque on the body"),
     Effect("yaw_torque_gain", ("gain",), ("-",), (1,), _yaw_torque_gain, (5,),
-           doc="torque (gain-1)[0,0,Γz]"),
+           doc="torque (gain-1)[0,0,Γz]",
+           meaning="the yaw torque (C_Q / Jzz) times this gain (1: as in the vehicle file)"),
     Effect("inertia_error", ("dJxx", "dJyy", "dJzz"), ("kg m^2",) * 3, (0, 0, 0), _inertia_error, TQ,
-           doc="torque -diag(dJ) α + (diag(dJ) ω) × ω"),
+           doc="torque -diag(dJ) α + (diag(dJ) ω) × ω",
+           meaning="the inertia off by dJ"),
     Effect("actuator_delay", ("delay_s",), ("s",), (0,), _actuator_delay, ALL, first_order=True,
-           doc="force and torque -delay d/dt [T-force, Γ] (first order)"),
+           doc="force and torque -delay d/dt [T-force, Γ] (first order)",
+           meaning="the rotors respond late by this delay"),
     Effect("marker_offset", ("rx", "ry", "rz"), ("m",) * 3, (0, 0, 0), _marker_offset, F,
-           doc="force m (α × r + ω × (ω × r))"),
+           doc="force m (α × r + ω × (ω × r))",
+           meaning="the motion-capture marker off the centre of gravity"),
     Effect("blade_flapping", ("k",), ("N m s/m",), (0,), _blade_flapping, (3, 4),
-           doc="torque k [v_by, -v_bx, 0]"),
+           doc="torque k [v_by, -v_bx, 0]",
+           meaning="the rotor disks tilt against the airflow: a roll/pitch moment growing with the body velocity"),
 ]}
 
 

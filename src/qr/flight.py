@@ -20,6 +20,7 @@ import pandas as pd
 from .atomic import atomic_path
 from .errors import QrInputError, warn
 from .frames import make_continuous
+from .rotors import HOVER_RATIO_LIMITS
 from .vehicle import SPEED_IN_RPM
 
 POSITION = ["px", "py", "pz"]
@@ -30,7 +31,6 @@ ACCEL = ["ax", "ay", "az"]  # accelerometer: specific force, body frame, m/s²
 GYRO = ["gx", "gy", "gz"]  # gyro: body rate, rad/s
 OPTIONAL = [*ACCEL, *GYRO, "vbat"]
 QUAT_NORM_TOL = 0.05  # |‖q‖ - 1| above this is not a rounding error
-HOVER_RATIO_LIMITS = (1 / 3, 3.0)
 
 
 def _error(path, problem, fix):

@@ -10,15 +10,16 @@ into the body (``v_b = R^T v_w``), not derivatives of ``v_b``.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 G = 9.81
 GRAVITY = np.array([0.0, 0.0, -G])
 E3 = np.array([0.0, 0.0, 1.0])
 
 
-def rotation(q: np.ndarray) -> Rotation:
+def rotation(q: np.ndarray):
     """scipy ``Rotation`` from scalar-first quaternions (N, 4) or (4,)."""
+    from scipy.spatial.transform import Rotation  # on use: scipy.spatial takes ~0.3 s, a log is read without it
+
     return Rotation.from_quat(np.asarray(q, dtype=float), scalar_first=True)
 
 
@@ -29,8 +30,9 @@ def quat_to_rot(q: np.ndarray) -> np.ndarray:
 
 def rot_to_quat(R: np.ndarray) -> np.ndarray:
     """Scalar-first unit quaternions with ``qw >= 0``."""
-    q = Rotation.from_matrix(R).as_quat(scalar_first=True, canonical=True)
-    return q
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R).as_quat(scalar_first=True, canonical=True)
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -104,11 +106,15 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 def so3_exp(phi: np.ndarray) -> np.ndarray:
     """Rotation matrix of a rotation vector (eq. 4.11)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_rotvec(phi).as_matrix()
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation vector of a rotation matrix (eqs. 4.13-4.14)."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_matrix(R).as_rotvec()
 
 

@@ -33,6 +33,7 @@ from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 DEFAULTS_FILE = "src/qr/rollout.py"
 QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
+REFERENCES = ("hold", "rate_frozen")  # the reference models every score is set beside
 MODEL, HOLD, RATE_FROZEN = 0, 1, 2
 
 

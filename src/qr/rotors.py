@@ -8,6 +8,17 @@ One matrix ``B`` (4 x 4) maps squared rotor speeds to ``[T, Γx, Γy, Γz]``::
 
 Layout ``plus`` is the thesis eq. (4.3): rotor 1 at (+l, 0), 2 at (0, +l),
 3 at (-l, 0), 4 at (0, -l), yaw signs (-1, +1, -1, +1).
+
+Layout ``x`` is the same rotors turned 45° clockwise seen from above (the plus airframe flown with
+its body x axis between rotors 1 and 2), a = l/√2: rotor 1 at (+a, −a) front-right, 2 at (+a, +a)
+front-left, 3 at (−a, +a) back-left, 4 at (−a, −a) back-right, yaw signs (-1, +1, -1, +1) (the
+diagonal pairs 1-3 and 2-4 turn alike)::
+
+    Γx = C_T a (−u1² + u2² + u3² − u4²)
+    Γy = C_T a (−u1² − u2² + u3² + u4²)
+
+Numbered counter-clockwise like ``plus``; an airframe numbered otherwise (the Crazyflie's run
+clockwise, PX4's quad X crosswise) lists its rotors explicitly.
 """
 
 from __future__ import annotations
@@ -17,11 +28,22 @@ from dataclasses import dataclass
 import numpy as np
 
 PLUS_YAW_SIGNS = (-1.0, 1.0, -1.0, 1.0)
+# the rotor map's median airborne thrust over the weight, m g, that a log may show: beyond it the speeds
+# are in another unit or the coefficients are wrong (qr.flight refuses the log; the thrust effects stop there)
+HOVER_RATIO_LIMITS = (1 / 3, 3.0)
+
+
+LAYOUTS = ("plus", "x")  # the named layouts (the rest: an explicit list of rotors)
 
 
 def plus_positions(arm_length: float) -> np.ndarray:
     l = float(arm_length)
     return np.array([[l, 0.0], [0.0, l], [-l, 0.0], [0.0, -l]])
+
+
+def x_positions(arm_length: float) -> np.ndarray:
+    a = float(arm_length) / np.sqrt(2.0)
+    return np.array([[a, -a], [a, a], [-a, a], [-a, -a]])
 
 
 @dataclass(frozen=True)
@@ -33,8 +55,8 @@ class RotorMap:
 
     @classmethod
     def from_layout(cls, layout, arm_length, thrust_coeff, torque_coeff) -> "RotorMap":
-        if layout == "plus":
-            pos = plus_positions(arm_length)
+        if isinstance(layout, str) and layout in LAYOUTS:
+            pos = {"plus": plus_positions, "x": x_positions}[layout](arm_length)
             signs = np.array(PLUS_YAW_SIGNS)
         else:
             pos = np.array([[float(r["x"]), float(r["y"])] for r in layout])

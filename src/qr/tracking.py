@@ -150,25 +150,70 @@ DESCRIPTIONS = {
                 "model and its ratio to the benchmark's physics baseline (rate_frozen).",
     "stability": "Eq. 5.15 stability analysis of the closed loop with each learned linear model.",
 }
-NOTE = "mlflow.note.content"
+NOTE = "mlflow.note.content"  # an experiment's or a run's description (Markdown in the UI)
+# qr's experiments are model training (MLflow 3 opens in its GenAI view: traces, no runs table).  The tag
+# declares it; MLflow 3.17's UI follows its GenAI / Model training switch instead, which an address's
+# ``workflowType=machine_learning`` sets (UI_QUERY: make mlflow-ui prints such an address)
+KIND = {"mlflow.experimentKind": "custom_model_development"}
+UI_QUERY = "workflowType=machine_learning"
+# the metrics each stage's runs table leads with: MLflow shows none by default (only a shared view, a URL's
+# viewStateShareKey naming an experiment tag mlflow.sharedViewState.<key>, selects columns)
+RESULTS_VIEW = "results"
+LEADING_METRICS = {
+    "learn": ["rmse", "ratio", "nominal_rmse", "train_time_s"],
+    "diagnose": ["effects_named", "nominal_loss", "extended_loss", "replay.nominal_position_rmse",
+                 "replay.extended_position_rmse", "rollout.extended.p_ratio", "rollout.extended.w_ratio"],
+    "evaluate": [f"{m}.{q}_ratio" for m in ("nominal", "extended", "hybrid") for q in ("p", "w")],
+    "filter": ["nis.position.mean", "nis.attitude.mean", "inconsistent_filters", "seconds"],
+}
+LEADING_PARAMS = {"learn": ["inputs", "target", "model.kind", "model.layers", "model.neurons"]}
+
+
+def _results_view(stage: str) -> str:
+    """The shared view (JSON, as the UI's Share button stores it) whose runs table leads with the stage's
+    metrics, in this order."""
+    cols = [f"metrics.`{m}`" for m in LEADING_METRICS.get(stage, [])]
+    cols += [f"params.`{p}`" for p in LEADING_PARAMS.get(stage, [])]
+    return json.dumps({"selectedColumns": cols, "columnOrder": cols, "orderByKey": "attributes.start_time",
+                       "orderByAsc": False})
+
+
+def results_view_url(base: str, experiment: str) -> str:
+    """The MLflow UI address of an experiment's runs table in its results view (model-training mode).
+    ``base`` "": the link an experiment's description holds (a query of its own before the ``#``, so the
+    UI loads the view afresh even from the experiment's own page)."""
+    return f"{base or '?view=' + RESULTS_VIEW}#/experiments/{experiment}/runs?{UI_QUERY}&viewStateShareKey={RESULTS_VIEW}"
+
+
+def _experiment_tags(stage: str, experiment: str | None) -> dict:
+    """Kind, description and (for a stage with leading metrics) the results view, linked first in the
+    description (the UI shows its first line)."""
+    tags, note = dict(KIND), DESCRIPTIONS.get(stage, "")
+    if stage in LEADING_METRICS:
+        tags[f"mlflow.sharedViewState.{RESULTS_VIEW}"] = _results_view(stage)
+        if experiment is not None:
+            note = (f"[Runs with their results]({results_view_url('', experiment)}) (the table leads with "
+                    f"{', '.join(LEADING_METRICS[stage][:3])}, ...) · {note}")
+    return {**tags, **({NOTE: note} if note else {})}
 
 
 def experiment_id(stage: str) -> str:
-    """Experiment ``qr-<stage>``, created once (under the lock) if missing, with its description."""
+    """Experiment ``qr-<stage>``, created once (under the lock) if missing, with its description, the
+    model-training view and the results view (tags brought up to date on an existing one)."""
     name = f"qr-{stage}"
-    note = DESCRIPTIONS.get(stage)
     with _store_lock():
         client = _client()
         exp = _retry(client.get_experiment_by_name, name)
-        if exp is not None:
-            if note and exp.tags.get(NOTE) != note:
-                _retry(client.set_experiment_tag, exp.experiment_id, NOTE, note)
-            return exp.experiment_id
-        location = None
-        if _is_local_sqlite(tracking_uri()):
-            location = (results_dir() / "mlartifacts").as_uri()
-        return _retry(client.create_experiment, name, artifact_location=location,
-                      tags={NOTE: note} if note else None)
+        if exp is None:
+            location = None
+            if _is_local_sqlite(tracking_uri()):
+                location = (results_dir() / "mlartifacts").as_uri()
+            exp = _retry(client.get_experiment, _retry(client.create_experiment, name, artifact_location=location,
+                                                       tags=_experiment_tags(stage, None)))
+        for key, value in _experiment_tags(stage, exp.experiment_id).items():
+            if exp.tags.get(key) != value:
+                _retry(client.set_experiment_tag, exp.experiment_id, key, value)
+        return exp.experiment_id
 
 
 class Run:
@@ -201,6 +246,10 @@ class Run:
 
     def artifact(self, path: str | Path, subdir: str | None = None) -> None:
         _retry(self.client.log_artifact, self.id, str(path), subdir)
+
+    def describe(self, text: str) -> None:
+        """The run's description (Markdown; the first thing its page shows)."""
+        self.tags({NOTE: text})
 
     def model(self, flavor: str, obj, X_example, y_example, requirements: list[str],
               name: str = "model", **save_options) -> None:
@@ -290,8 +339,9 @@ def _reap_once(client) -> None:
 
 @contextlib.contextmanager
 def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str | Path] = (),
-        parent: Run | None = None, tags: dict | None = None) -> Iterator[Run]:
-    """Open an MLflow run in experiment ``qr-<stage>`` with provenance tags.
+        parent: Run | None = None, tags: dict | None = None, description: str | None = None) -> Iterator[Run]:
+    """Open an MLflow run in experiment ``qr-<stage>`` with provenance tags; ``description``: the run's
+    (its page shows it first; :meth:`Run.describe` sets it later).
 
     Ends FINISHED on success, KILLED on interrupt (SIGINT, SIGTERM), FAILED on any other error.
     ``QR_TRACKING=off`` disables tracking (the run object then records nothing).
@@ -317,6 +367,8 @@ def run(stage: str, name: str, config: dict | None = None, inputs: Iterable[str 
     if parent is not None and not isinstance(parent, _NullRun):
         all_tags["mlflow.parentRunId"] = parent.id
     all_tags.update(tags or {})
+    if description:
+        all_tags[NOTE] = description
     # a cancel that lands inside create_run (the run stored, its id not yet returned) must still end the
     # run: the token finds it (masking the signal is not enough: another thread of the process takes it)
     token = uuid.uuid4().hex
@@ -356,6 +408,9 @@ class _NullRun(Run):
         pass
 
     def artifact(self, path, subdir=None):
+        pass
+
+    def describe(self, text):
         pass
 
     def model(self, flavor, obj, X_example, y_example, requirements, name="model", **save_options):

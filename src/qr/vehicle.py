@@ -23,7 +23,8 @@ import yaml
 from .allowed import is_number
 from .atomic import plain, write_text
 from .errors import QrInputError, warn
-from .rotors import CommandMap, RotorMap
+from .rotors import LAYOUTS, CommandMap, RotorMap
+from .shipped import shipped_vehicles, vehicle_file
 
 REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
 SPEED_UNITS = ("rpm", "rad_s")
@@ -97,9 +98,10 @@ class Vehicle:
         return list(self.raw.get("effects") or [])
 
     def with_changes(self, **changes) -> "Vehicle":
+        """The vehicle with ``changes``; the file's own keys were warned about when it was loaded."""
         raw = copy.deepcopy(self.raw)
         raw.update(changes)
-        return vehicle_from_dict(raw)
+        return vehicle_from_dict(raw, quiet=True)
 
     def to_dict(self) -> dict:
         return copy.deepcopy(self.raw)
@@ -120,6 +122,14 @@ def _number(path, raw, key, positive=True, minimum=None):
     return x
 
 
+def _near(key: str, keys) -> str | None:
+    """The known key ``key`` is most likely a misspelling of (difflib's closest), or None."""
+    import difflib
+
+    close = difflib.get_close_matches(str(key), sorted(map(str, keys)), n=1)
+    return close[0] if close else None
+
+
 def _layout_entry(path, i, r):
     if not isinstance(r, dict) or not {"x", "y", "yaw_sign"} <= set(r):
         raise QrInputError(path, f"layout rotor {i} is {r!r}",
@@ -132,19 +142,17 @@ def _layout_entry(path, i, r):
         raise QrInputError(path, f"layout rotor {i} has yaw_sign {r['yaw_sign']!r}", "yaw_sign is +1 or -1")
 
 
-def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
+def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = False) -> Vehicle:
+    """A validated vehicle; ``quiet``: no warnings (a vehicle derived from one already loaded)."""
+    warn_ = (lambda *a: None) if quiet else warn
     if not isinstance(raw, dict):
         raise QrInputError(path, "vehicle file is not a YAML mapping",
                            "write 'key: value' lines as in docs/spec/flight-log.md")
     missing = [k for k in REQUIRED if k not in raw]
-    if raw.get("layout") == "plus" and "arm_length" not in raw:
+    if raw.get("layout") in LAYOUTS and "arm_length" not in raw:
         missing.append("arm_length")
     if missing:
-        import difflib
-        hints = []
-        for k in missing:
-            close = difflib.get_close_matches(k, [str(x) for x in raw], n=1)
-            hints.append(f"'{k}'" + (f" (found {close[0]!r})" if close else ""))
+        hints = [f"'{k}'" + (f" (found {c!r})" if (c := _near(k, raw)) else "") for k in missing]
         raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
                            "add them as in docs/spec/flight-log.md")
     raw = dict(raw)
@@ -167,7 +175,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         a, b, c = J[i], J[(i + 1) % 3], J[(i + 2) % 3]
         if a > b + c:
             names = ["Jxx", "Jyy", "Jzz"]
-            warn(path, f"inertia {[float(x) for x in J]} breaks the triangle inequality "
+            warn_(path, f"inertia {[float(x) for x in J]} breaks the triangle inequality "
                        f"({names[i]} > {names[(i + 1) % 3]} + {names[(i + 2) % 3]}): no rigid body has it",
                  "use measured principal inertias; for a symmetric quadrotor Jzz is at most Jxx + Jyy "
                  "(the thesis's Table 4.1 value is such an error)")
@@ -177,10 +185,11 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
                            f"use one of {', '.join(SPEED_UNITS)}")
     layout = raw["layout"]
-    if layout != "plus":
+    if not (isinstance(layout, str) and layout in LAYOUTS):
         if not isinstance(layout, list) or len(layout) != 4:
-            raise QrInputError(path, "layout is neither 'plus' nor a list of four rotors",
-                               "write layout: plus, or four entries {x, y, yaw_sign}")
+            raise QrInputError(path, f"layout is {layout!r}: neither {' nor '.join(map(repr, LAYOUTS))} nor a "
+                                     "list of four rotors", "write layout: x, layout: plus, or four entries "
+                                                            "{x, y, yaw_sign} (docs/ingest.md, 'Vehicle files')")
         for i, r in enumerate(layout, 1):
             _layout_entry(path, i, r)
     rotors = RotorMap.from_layout(layout, arm, ct, cq)
@@ -195,10 +204,13 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
     for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
         if k in raw:
             _number(path, raw, k, positive=k == "motor_time_constant", minimum=0 if k == "rotor_speed_min" else None)
-    _check_rotor_input(path, raw)
-    unknown = sorted(set(raw) - KNOWN)
+    _check_rotor_input(path, raw, warn_)
+    unknown = sorted(set(map(str, raw)) - KNOWN)
     if unknown:
-        warn(path, f"vehicle file has unknown key(s) {unknown} (ignored)", "remove them or check their spelling")
+        near = {k: c for k in unknown if (c := _near(k, KNOWN - set(raw)))}
+        fix = "; ".join(f"'{k}' is probably '{c}'" for k, c in near.items())
+        warn_(path, f"vehicle file has unknown key(s) {unknown} (ignored)",
+              (fix + ": correct the spelling" if near else "remove them or check their spelling"))
     vehicle = Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
     if raw.get("effects") is not None:
         from .effects import validate_effect_list
@@ -211,7 +223,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
     return vehicle
 
 
-def _check_rotor_input(path, raw: dict) -> None:
+def _check_rotor_input(path, raw: dict, warn_=warn) -> None:
     """``rotor_input: command`` needs a ``command_map`` whose thrust rises with the command."""
     kind = raw.get("rotor_input", "speed")
     if kind not in ROTOR_INPUTS:
@@ -219,7 +231,7 @@ def _check_rotor_input(path, raw: dict) -> None:
     m = raw.get("command_map")
     if kind == "speed":
         if m is not None:
-            warn(path, "command_map is given but rotor_input is speed (the map is ignored)",
+            warn_(path, "command_map is given but rotor_input is speed (the map is ignored)",
                  "set rotor_input: command if the log's u1..u4 are motor commands")
         return
     fix = "write command_map: {a: N, b: N, k: N} (thrust = a + b c + k c², c in [0, 1]; lists of 4 per rotor)"
@@ -256,7 +268,8 @@ _Loader.add_implicit_resolver(
 def _read_yaml(path: Path, chain: tuple = ()) -> dict:
     """The file's mapping, with ``extends:`` resolved (``chain``: the files that extend this one)."""
     if not path.exists():
-        raise QrInputError(path, "vehicle file does not exist", "check the path, or name a shipped vehicle (conf/vehicle/: asctec_hummingbird, ...)")
+        raise QrInputError(path, "vehicle file does not exist",
+                           f"check the path, or name a shipped vehicle ({', '.join(shipped_vehicles())})")
     if path.is_dir():
         raise QrInputError(path, "is a folder, not a vehicle file",
                            "give the vehicle's YAML file (e.g. conf/vehicle/NAME.yaml)")
@@ -307,12 +320,7 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
 def load_vehicle(path: str | Path) -> Vehicle:
     """A vehicle file, or a shipped vehicle by name (``asctec_hummingbird``: ``conf/vehicle/<name>.yaml``,
     found in an installed qr too)."""
-    from .config import CONF_DIR
-
-    path = Path(path)
-    if not path.is_file() and path.suffix not in (".yaml", ".yml") and str(path) == path.name:  # a bare name
-        shipped = Path(CONF_DIR) / "vehicle" / f"{path.name}.yaml"
-        path = shipped if shipped.is_file() else path
+    path = vehicle_file(path)
     return vehicle_from_dict(_read_yaml(path), path)
 
 

@@ -128,6 +128,31 @@ def test_thesis_inertia_warns_with_the_fix(tmp_path, capsys):
     assert (tmp_path / "o.csv").exists()
 
 
+def test_a_misspelt_optional_vehicle_key_warns_once_with_the_near_match(tmp_path, capsys):
+    """Loaded, then extended (as qr diagnose does): one warning, naming the key it probably is."""
+    import warnings
+
+    import yaml
+
+    from qr.vehicle import load_vehicle
+
+    raw = yaml.safe_load(HB.read_text())
+    raw["motor_time_constnt"] = raw.pop("motor_time_constant")
+    vpath = tmp_path / "typo.yaml"
+    vpath.write_text(yaml.safe_dump(raw))
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        v = load_vehicle(vpath)
+        v.with_changes(effects=[{"name": "linear_drag", "parameters": {"kx": 0.1, "ky": 0.1, "kz": 0.1}}])
+    assert len(seen) == 1, [str(w.message) for w in seen]
+    assert "'motor_time_constnt' is probably 'motor_time_constant'" in str(seen[0].message)
+    flight = _csv(tmp_path, _flight(), "ok.csv")
+    status, _, err = run_cli(["ingest", flight, "--vehicle", vpath, "--out", tmp_path / "o.csv"], capsys)
+    assert status == 0 and err.count("qr: warning:") == 1
+    assert "unknown key(s) ['motor_time_constnt'] (ignored); fix: 'motor_time_constnt' is probably " \
+           "'motor_time_constant': correct the spelling" in err
+
+
 def test_unknown_effect_and_bad_synth_arguments(tmp_path, capsys):
     status, _, err = run_cli(["synth", "--vehicle", HB, "--effect", "linear_drg:kx=1", "--out", tmp_path / "s"],
                              capsys)

@@ -1,3 +1,4 @@
+import json
 import subprocess
 import sys
 import textwrap
@@ -41,9 +42,21 @@ def test_run_has_provenance_and_status(tmp_path, monkeypatch):
     assert len(ok.data.tags["mlflow.source.git.commit"]) >= 7
     assert ok.data.tags["qr.config_hash"] == tracking.config_hash({"model": {"layers": 2}})
     assert str(tmp_path) in tracking.tracking_uri()
-    # each stage's experiment says what it holds (the UI's description)
-    exp = client.get_experiment(tracking.experiment_id("diagnose"))
-    assert exp.tags[tracking.NOTE] == tracking.DESCRIPTIONS["diagnose"]
+    # each stage's experiment says what it holds (the UI's description), opens in MLflow 3's model-training
+    # view (not its GenAI one) and links a view of its runs table that leads with the stage's metrics
+    eid = tracking.experiment_id("diagnose")
+    exp = client.get_experiment(eid)
+    assert exp.tags[tracking.NOTE].startswith(f"[Runs with their results](?view=results#/experiments/"
+                                              f"{eid}/runs?workflowType=machine_learning&viewStateShareKey=results)")
+    assert exp.tags[tracking.NOTE].endswith(tracking.DESCRIPTIONS["diagnose"])
+    assert exp.tags["mlflow.experimentKind"] == "custom_model_development"
+    view = json.loads(exp.tags["mlflow.sharedViewState.results"])
+    assert view["selectedColumns"][:2] == ["metrics.`effects_named`", "metrics.`nominal_loss`"] == view["columnOrder"][:2]
+    # a run's description: its page shows it first
+    with tracking.run("unit", "described", {}, description="Named linear_drag.") as r:
+        r.metrics({"rmse": 0.1})
+    described = client.get_run(r.id)
+    assert described.data.tags[tracking.NOTE] == "Named linear_drag." and described.info.status == "FINISHED"
 
 
 def test_two_processes_logging_at_once_lose_nothing(tmp_path, monkeypatch):

@@ -203,3 +203,56 @@ def test_user_mistake_is_one_clear_line(tmp_path):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("qr learn: error: unknown input group 'v_bb'"), res.stderr
     assert "did you mean 'v_b'" in lines[0]
+
+
+QR = str(ROOT / ".venv" / "bin" / "qr")  # the program, as an installed user runs it
+
+
+def _qr_elsewhere(folder, *args):
+    """``qr ARGS`` in ``folder`` (outside the checkout), untracked."""
+    env = {**os.environ, "QR_TRACKING": "off", "OPENBLAS_NUM_THREADS": "1"}
+    env.pop("QR_RESULTS", None)
+    return subprocess.run([QR, *args], cwd=folder, env=env, capture_output=True, text=True, timeout=600)
+
+
+def test_the_readme_sweep_without_a_data_set_names_the_key_and_writes_nothing(tmp_path):
+    res = _qr_elsewhere(tmp_path, "learn", "-m", "model=ann", "model.layers=1,2")
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("qr learn: error: results/learn/brushless/dataset.parquet: "
+                                                   "learning table does not exist; fix: give learn.dataset=PATH")
+    assert "learn.vehicle=" in lines[0]
+    assert list(tmp_path.iterdir()) == []  # no results/, no Hydra folder, no MLflow store
+    res = _qr_elsewhere(tmp_path, "learn", "-m", "model=ann", "model.layers=1,2", "learn.inputs=[v_bb]")
+    assert res.returncode == 2 and "unknown input group 'v_bb'" in res.stderr and list(tmp_path.iterdir()) == []
+
+
+def test_the_readme_sweep_from_another_folder_on_the_state_table_qr_filter_writes(tmp_path):
+    """README: ``qr learn -m model=ann model.layers=1,2`` with the state table of a filtered flight; each job's
+    line says its setting."""
+    vehicle, _, _, states = drag_flight()
+    states.to_parquet(tmp_path / "states.parquet", index=False)
+    res = _qr_elsewhere(tmp_path, "learn", "-m", "model=ann", "model.layers=1,2", "learn.dataset=states.parquet",
+                        "learn.vehicle=asctec_hummingbird", "split=blocked")
+    assert res.returncode == 0, res.stderr[-3000:]
+    jobs = [line for line in res.stderr.split("\n") if line.startswith("job00")]  # a line each, beside the bar
+    assert [j.split(":")[0] for j in jobs] == [
+        "job000 (model=ann model.layers=1 learn.dataset=states.parquet learn.vehicle=asctec_hummingbird split=blocked)",
+        "job001 (model=ann model.layers=2 learn.dataset=states.parquet learn.vehicle=asctec_hummingbird split=blocked)"]
+    (runs,) = (tmp_path / "results" / "hydra" / "multirun").glob("*/runs.csv")
+    table = pd.read_csv(runs)
+    assert list(table["layers"]) == [1, 2] and (table["ratio"] < 0.5).all()  # the drag is learnt
+
+
+def test_a_state_table_needs_its_vehicle_and_the_right_one(tmp_path):
+    _, _, _, states = drag_flight()
+    path = tmp_path / "states.parquet"
+    states.to_parquet(path, index=False)
+    with pytest.raises(Exception, match="is a state table: its labels f_a, tau_a depend on the vehicle; "
+                                        "fix: name it: learn.vehicle=V.yaml"):
+        datasets.read_table(path)
+    # the Crazyflie's coefficients on the Hummingbird's rotor speeds: refused, not learnt
+    with pytest.raises(Exception, match="rotor speeds give a median thrust of"):
+        datasets.read_table(path, "crazyflie21_brushless")
+    table = datasets.read_table(path, "asctec_hummingbird")
+    assert set(table["flight"]) == {"states"} and len(table) > 0.9 * len(states)

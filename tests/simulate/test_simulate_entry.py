@@ -57,7 +57,7 @@ def test_hydra_entry_point_runs_and_rejects_bad_config_in_one_line(tmp_path):
 
 
 @pytest.mark.parametrize("override, match", [("simulate.sources.drag_wind.estimates.fit_v_u.model=magic", "unknown force"),
-                                             ("simulate.vehicle=no_such_vehicle", "not found"),
+                                             ("simulate.vehicle=no_such_vehicle", "does not exist; fix: check the path, or name a shipped vehicle \\(asctec_hummingbird"),
                                              ("+simulate.gains.kp=3", "unknown key"),
                                              ("simulate.rate=100", "below 500 Hz"),
                                              ("simulate.sources.learned.enabled=true", "no path given")])

@@ -32,6 +32,7 @@ validate(config, "../schemas/config.schema.yaml")
 # the process that left it is gone (qr.procs).  Snakemake's own lock is Snakemake's (`--unlock`).
 from qr.config import experiments  # named experiments (conf/experiment/) as one Hydra override
 from qr.procs import remove_orphan_temporaries
+from qr.shipped import vehicle_file as find_vehicle
 
 remove_orphan_temporaries("results")
 
@@ -52,12 +53,17 @@ def raw_log(wildcards):
     return str(DATA_ROOT / s.get("dir", "") / (wildcards.flight + s.get("suffix", "")))
 
 
+def shipped_vehicle(name):
+    """A shipped vehicle's file in this workflow's conf/ (qr.shipped: how a name is found)."""
+    return str(find_vehicle(name, conf="conf"))
+
+
 def vehicle_file(set_name):
     """A shipped vehicle by name (conf/vehicle/), or a vehicle file's path (relative to the data set file)."""
     v = str(SETS[set_name]["vehicle"])
     if v.endswith((".yaml", ".yml")):
         return str(DATA_FILE.parent / v) if not Path(v).is_absolute() else v
-    return f"conf/vehicle/{v}.yaml"
+    return shipped_vehicle(v)
 
 
 def flights_of(set_name, pattern):
@@ -114,17 +120,27 @@ def stage_sources(wildcards, input):
 
 
 def overview_figures():
-    """(png, caption) for the overview page; directories are the rules' outputs, the files inside them."""
+    """(png, caption) for the overview page, each caption saying what to look at; directories are the rules'
+    outputs, the files inside them."""
     out = []
     for s in SETS:
         out += [(f"results/diagnosis/{s}/all/figures/residual_vs_effects.png",
-                 f"Diagnosis, {s}: held-out residual force and torque of the nominal model (grey) and what "
-                 "the named effects explain (red)"),
+                 f"Diagnosis, {s}: the held-out force and torque residual of the nominal model (grey), the flights "
+                 "one after another (shaded alternately), and what the named effects explain (red). Where red follows "
+                 "grey, a named effect accounts for the error; grey left around red is what none explains."),
                 (f"results/diagnosis/{s}/all/figures/replay_drift.png",
-                 f"Diagnosis, {s}: open-loop replay drift of the nominal and the extended model"),
+                 f"Diagnosis, {s}: how far an open-loop replay, driven by the measured rotor speeds, drifts from the "
+                 "measured position after each restart; left the RMS over all restarts per axis, right the three "
+                 "worst. The extended model (red) should stay below the nominal one (grey) all along."),
                 (f"results/evaluation/{s}/held_out/figures/rollout_mae.png",
-                 f"Rollout, {s}: MAE against the horizon h per model on the held-out flights")]
+                 f"Rollout, {s}: mean absolute error against the time ahead on the held-out flights, per model "
+                 "(nominal, extended, hybrid as in the rollout table), beside the benchmark's physics baseline "
+                 "(rate_frozen, dark dashed). Below that curve a model predicts better; at the right end the gap "
+                 "is the table's ratio.")]
     out += [("results/figures/sim_tracking.png", "Simulation (thesis Chapter 5): the Bezier trajectory flown by "
-             "the nominal, the compensated and the oracle controller"),
-            ("results/figures/sim_rmse.png", "Simulation: tracking RMSE per controller and residual model")]
+             "the nominal, the compensated and the oracle controller (left), and each one's position error per "
+             "axis (right). The closer a compensated controller's error to the oracle's, the better its model of "
+             "the disturbance."),
+            ("results/figures/sim_rmse.png", "Simulation: position RMSE per residual model and controller (log "
+             "scale; hatched: diverged). Lower is better; the oracle, which knows the true disturbance, is the floor.")]
     return out

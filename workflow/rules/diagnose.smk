@@ -66,7 +66,7 @@ rule diagnose_check:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
         nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
         crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
-        vehicle=lambda wc: f"conf/vehicle/{DIAG_CHECK['vehicle']}.yaml",
+        vehicle=lambda wc: shipped_vehicle(DIAG_CHECK["vehicle"]),
     output:
         directory("results/diagnosis/{set}/check"),
     log:

@@ -11,7 +11,7 @@ SIM_OVERRIDES = list(config.get("simulate", {}).get("overrides", []))  # conf/wo
 rule simulate:
     input:
         sim=f"conf/simulate/{SIM_CONFIG}.yaml",
-        vehicle="conf/vehicle/asctec_hummingbird.yaml",
+        vehicle=shipped_vehicle("asctec_hummingbird"),
         learned=rules.learn_best.output.force,
         diagnosis=expand(rules.diagnose_set.output[0], set=MODEL_SET)[0],
     output:
@@ -36,7 +36,7 @@ rule simulate:
 rule stability:
     input:
         sim=f"conf/simulate/{SIM_CONFIG}.yaml",
-        vehicle="conf/vehicle/asctec_hummingbird.yaml",
+        vehicle=shipped_vehicle("asctec_hummingbird"),
     output:
         table="results/simulation/stability.csv",
         markdown="results/simulation/stability.md",

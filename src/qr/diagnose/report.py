@@ -367,15 +367,22 @@ def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
     pred = res["pred_test"][::step]
     out = {}
 
+    # flights (segments) one after another on the axis, never joined across flights or time gaps
+    x, (y, pred), spans = figures.end_to_end(t, prep.flight[test][::step], y, pred)
     fig, axs = figures.subplots(6, 1, figsize=(8, 9), sharex=True)
     for i, ax in enumerate(axs):
-        ax.plot(t, y[:, i], lw=0.6, color="grey", label="residual (nominal model)")
-        ax.plot(t, pred[:, i], lw=0.9, color="C3", label="named effects")
+        for a, b in spans[1::2]:
+            ax.axvspan(a, b, color="0.93", lw=0)
+        ax.plot(x, y[:, i], lw=0.6, color="grey", label="residual (nominal model)")
+        ax.plot(x, pred[:, i], lw=0.9, color="C3", label="named effects")
         ax.set_ylabel(AXES[i] + (" (N)" if i < 3 else " (N m)"))
     axs[0].legend(fontsize=7, loc="upper right")
-    axs[-1].set_xlabel("t (s), held-out part")
+    axs[-1].set_xlabel("t (s), held-out part" if len(spans) == 1 else
+                       f"held-out time (s) of {len(spans)} flights or segments, one after another (shaded alternately)")
     figures.save(fig, figdir / "residual_vs_effects.png")
-    out["Residual force and torque on held-out data, and what the named effects explain"] = "residual_vs_effects.png"
+    out["Held-out residual force and torque of the nominal model (grey; flights one after another, shaded "
+        "alternately) and what the named effects explain (red): where red follows grey, a named effect "
+        "accounts for it"] = "residual_vs_effects.png"
 
     fig, axs = figures.subplots(1, 2, figsize=(9, 3.2))
     for key, c in (("nominal", "grey"), ("extended", "C3")):

@@ -16,6 +16,7 @@ activations) expose ``collapse() -> (W, b)`` in input units.
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -23,19 +24,16 @@ from ..errors import QrInputError
 from .base import SCHEMA, Model
 
 
-def _kinds() -> dict:
-    from .ann import ANN
-    from .gpr import GPR
-    from .linear import Ridge
-
-    return {"ann": ANN, "linear": Ridge, "gpr": GPR}
+# kind -> (module, class): a kind's module is imported when it is used (the GPR's scikit-learn and the
+# ANN's torch take seconds to import; qr diagnose fits only the linear one)
+KINDS = {"ann": ("ann", "ANN"), "linear": ("linear", "Ridge"), "gpr": ("gpr", "GPR")}
 
 
 def model_class(kind: str):
-    kinds = _kinds()
-    if kind not in kinds:
-        raise QrInputError(None, f"unknown model kind '{kind}'", f"use one of {', '.join(kinds)}")
-    return kinds[kind]
+    if kind not in KINDS:
+        raise QrInputError(None, f"unknown model kind '{kind}'", f"use one of {', '.join(KINDS)}")
+    module, name = KINDS[kind]
+    return getattr(importlib.import_module(f"{__name__}.{module}"), name)
 
 
 def prepare(kind: str) -> None:

@@ -163,7 +163,6 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
     ``folder``/d; the diagnosis document."""
     from pathlib import Path
 
-    from ..config import vehicle_path
     from ..stages.diagnose import run_diagnosis
     from ..vehicle import load_vehicle
     from .synth import SynthConfig, write_synth
@@ -171,7 +170,7 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    vehicle = load_vehicle(vehicle_path(sc.vehicle))
+    vehicle = load_vehicle(sc.vehicle)
     if sc.effects and isinstance(sc.effects[0], str):
         materialise(sc, vehicle)
     traj = TrajectoryConfig(v_max=sc.v_max, tilt_max_deg=sc.tilt_max_deg, low_passes=sc.low_height > 0,

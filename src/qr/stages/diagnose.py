@@ -64,12 +64,18 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+    from ..flight import read_flight
+
+    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
+    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
+    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
+    measured = [read_flight(f) for f in flights]
 
     from .. import conventions
     from ..atomic import write_json
     from ..config import to_dict
     from ..estimation.settings import resolve as resolve_filter
-    from ..flight import hover_ratio, read_flight
+    from ..flight import hover_ratio
     from ..segments import flight_segments
     from ..diagnose.coefficients import coefficient_checks
     from ..diagnose.crossfit import Estimates, prepare_flight
@@ -83,9 +89,6 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     dcfg_dict = to_dict(cfg.diagnose)
     dcfg = DiagnoseConfig.from_dict(dcfg_dict)
     resolve_filter(to_dict(cfg.filter))  # the filter settings too, before any work
-    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
-    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
-    measured = [read_flight(f) for f in flights]
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = dcfg.selection.folds if len(flights) == 1 else 1
     need = (blocks * dcfg.block_s + dcfg.gap_s / 2) / dcfg.train_fraction
@@ -242,7 +245,7 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
 
     outdir = Path(outdir)
     with tracking.run("diagnose", name, {"diagnose": doc["config"], "filter": doc.get("filter", {})},
-                      inputs=inputs) as run:
+                      inputs=inputs, description=doc["verdict"]) as run:
         run.metrics({**(metrics or {}), "effects_named": len(doc["effects"]),
                      "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
                      "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"],
@@ -254,10 +257,12 @@ def track_diagnosis(name, doc: dict, inputs, outdir, metrics: dict | None = None
 
 
 def _rollout_metrics(ro: dict | None) -> dict:
-    """``rollout.<model>.<q>_at_<H>`` of the diagnosis's rollout block (qr.rollout.horizon_metrics)."""
+    """``rollout.<model>.<q>_at_<H>`` and ``..._ratio`` (to rate_frozen) of the diagnosis's rollout block."""
     from ..rollout import horizon_metrics
 
-    return horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.") if ro and ro.get("models") else {}
+    if not (ro and ro.get("models")):
+        return {}
+    return horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.", ratios=True)
 
 
 def _reports(nis_files):

@@ -15,15 +15,10 @@ import numpy as np
 import pandas as pd
 
 from .. import rollout
-from ..rollout import EvaluateConfig, pieces, table
+from ..rollout import REFERENCES, EvaluateConfig, pieces
 from ..errors import QrInputError
 
 OUTPUTS = ("evaluation.json", "report.md", "figures/")
-REFERENCES = ("hold", "rate_frozen")
-# the public nanodrone-sysid-benchmark at h = 50 on its own held-out Crazyflie flights (its table)
-PUBLISHED_H50 = {"physics, no drag, rate frozen": {"p": 0.127, "v": 0.578, "R": 0.254, "w": 0.884},
-                 "physics + MLP residual": {"p": 0.112, "v": 0.556, "R": 0.231, "w": 0.598}}
-UNITS = {"p": "m", "v": "m/s", "R": "rad", "w": "rad/s"}
 
 
 def _compose(overrides):
@@ -56,8 +51,11 @@ def models_of(vehicles: list, names: list[str]) -> dict:
 
 def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
                    figures: bool = True, reports: list | None = None, track: str | None = None,
-                   estimates: list | None = None) -> dict:
+                   estimates: list | None = None, labels: list[str] | None = None) -> dict:
     """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work).
+
+    ``labels``: the name each vehicle's model has in the report, the figure and the tracked metrics
+    (``evaluation.json``'s ``labels``; default: its key, the file's name).
 
     ``reports``: the filter stage's report of each flight (its tuned noise values are reused instead
     of tuning again, as ``qr diagnose`` does).  ``track``: the name of an MLflow run (experiment
@@ -67,25 +65,28 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
+    from ..flight import read_flight
+    from ..vehicle import load_vehicle
+
+    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
+    names = model_names([str(v) for v in vehicles])
+    vehs = [load_vehicle(v) for v in vehicles]
+    measured = [read_flight(f) for f in flights]
+
     from .. import conventions
     from ..atomic import atomic_dir, write_json, write_text
     from ..config import to_dict
     from ..diagnose.crossfit import Estimates, fixed_settings
     from ..estimation import estimate
     from ..estimation.settings import resolve as resolve_filter
-    from ..flight import read_flight
     from ..segments import flight_segments
-    from ..vehicle import load_vehicle
 
     say = log or (lambda msg: print(f"qr evaluate: {msg}", file=sys.stderr))
     cfg = _compose(overrides)
     ecfg = EvaluateConfig.from_dict(to_dict(cfg.evaluate))
     filter_cfg = to_dict(cfg.filter)
     resolve_filter(filter_cfg)
-    names = model_names([str(v) for v in vehicles])
-    vehs = [load_vehicle(v) for v in vehicles]
     models = models_of(vehs, names)
-    measured = [read_flight(f) for f in flights]
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
         fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
@@ -116,75 +117,40 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         "dt_range": [float(dt.min()), float(dt.max())],
         "horizon": ecfg.horizon,
         "config": {"evaluate": {**to_dict(cfg.evaluate)}, "filter": filter_cfg},
+        "labels": dict(zip(names, labels or names)),
         "models": {k: rollout.summary(*v) for k, v in pooled.items()},
         "per_flight": {f: {"models": {k: rollout.summary(*v) for k, v in p.items()}} for f, p in per_flight.items()},
     }
+    from ..report.evaluation import mae_figure, report
+
     with atomic_dir(out, force=force, command="qr evaluate") as tmp:
-        figs = {}
         if figures:
             (tmp / "figures").mkdir()
-            figs = {"MAE against the step h, per model (pooled over all windows)":
-                    mae_figure(doc["models"], tmp / "figures" / "rollout_mae.png")}
-        write_text(tmp / "report.md", report(doc, figs))
+            mae_figure(doc, tmp / "figures" / "rollout_mae.png")
+        write_text(tmp / "report.md", report(doc, "figures/rollout_mae.png" if figures else None))
         write_json(tmp / "evaluation.json", doc)
     if track:
-        track_evaluation(track, doc, [*flights, *vehicles], out)
+        from ..shipped import vehicle_file
+
+        track_evaluation(track, doc, [*flights, *map(vehicle_file, vehicles)], out)  # (a vehicle by name: its file)
     say(f"wrote {out}/evaluation.json")
     return doc
 
 
 def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
-    """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``."""
+    """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``
+    (metrics named by the models' labels), the report's first sentence as the run's description."""
     from .. import tracking
+    from ..report.evaluation import headline, labels
 
-    with tracking.run("evaluate", name, doc["config"], inputs=inputs) as run:
-        run.metrics(rollout.horizon_metrics(doc["models"], doc["horizon"], ratios=True))
-        run.tags({"qr.models": ",".join(doc["models"])})
+    name_of = labels(doc)
+    with tracking.run("evaluate", name, doc["config"], inputs=inputs, description=headline(doc)) as run:
+        run.metrics(rollout.horizon_metrics({name_of[k]: v for k, v in doc["models"].items()}, doc["horizon"],
+                                            ratios=True))
+        run.tags({"qr.models": ",".join(name_of.values())})
         for p in ("evaluation.json", "report.md"):
             if (Path(outdir) / p).exists():
                 run.artifact(Path(outdir) / p)
-
-
-def report(doc: dict, figs: dict) -> str:
-    H = doc["horizon"]
-    lo, hi = doc["dt_range"]
-    lines = [f"# Rollout evaluation ({len(doc['flights'])} flight{'s' if len(doc['flights']) > 1 else ''})", "",
-             f"Open-loop rollout over H = {H} steps (dt {doc['dt'] * 1e3:.2f} ms, the log's own steps: "
-             f"{lo * 1e3:.2f}-{hi * 1e3:.2f} ms), from every sample of the filtered estimate; truth: the measured "
-             "position and attitude, the estimated velocity and body rate. Mean absolute error per step h: "
-             "p (m), v (m/s), R (rad, rotation angle of q⁻¹ ⊗ q̂), w (rad/s); SimErr = the sum over h = 1..H.",
-             "", "References: `hold` (the state held), `rate_frozen` (nominal thrust along body z, no drag, body rate "
-             "held at its start value: the public nanodrone-sysid-benchmark's physics baseline).", "",
-             *table(doc["models"], H), ""]
-    for title, path in figs.items():
-        lines += [f"![{title}](figures/{path})", ""]
-    lines += ["For comparison, the benchmark's published h = 50 figures on its own held-out Crazyflie flights "
-              "(other flights, so only the orders of magnitude compare):", ""]
-    lines += [f"- {k}: " + ", ".join(f"{q} {v} {UNITS[q]}" for q, v in d.items()) for k, d in PUBLISHED_H50.items()]
-    if len(doc["per_flight"]) > 1:
-        lines += ["", "## Per flight", ""]
-        for f, p in doc["per_flight"].items():
-            lines += [f"### {f}", "", *table(p["models"], H), ""]
-    return "\n".join(lines) + "\n"
-
-
-def mae_figure(models: dict, path: Path) -> str:
-    from ..report import figures
-
-    fig, axs = figures.subplots(1, 4, figsize=(13, 3.4), layout="constrained")
-    for k, q in enumerate(rollout.QUANTITIES):
-        for j, (name, block) in enumerate(models.items()):
-            m = np.array([np.nan if x is None else x for x in block[q]["mae"]])
-            axs[k].plot(np.arange(1, len(m) + 1), m, label=name,
-                        color={"hold": "0.6", "rate_frozen": "0.2"}.get(name, f"C{j}"),
-                        ls="--" if name in REFERENCES else "-")
-        axs[k].set_xlabel("h (steps)")
-        axs[k].set_ylim(bottom=0)
-        axs[k].set_title(f"{q} ({UNITS[q]})", fontsize=10)
-    axs[0].set_ylabel("mean absolute error")
-    axs[0].legend(fontsize=7)
-    figures.save(fig, path)
-    return path.name
 
 
 def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
@@ -219,36 +185,35 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
                   reports=[reports[f] for f in train], log=lambda m: None,
                   estimates=[stored[f] for f in train] if stored else None)
     ext = Path(diag_out) / "extended_vehicle.yaml"
-    models = [vehicle, str(ext)]
+    models, labels = [vehicle, str(ext)], ["nominal", "extended"]
     with tempfile.TemporaryDirectory() as tmp:
         if load_vehicle(ext).raw.get("torque_remainder"):  # a hybrid: its physical part beside it
             physical = load_vehicle(ext).to_dict()
             physical.pop("torque_remainder")
             save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
             models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
+            labels.append("hybrid")
         return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
-                              track=track, estimates=[stored[f] for f in test] if stored else None)
+                              track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels)
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
     """The held-out rollouts of the flight sets side by side: MAE at h = H and the ratio to ``rate_frozen``."""
     import json
 
+    from ..report.evaluation import labels, ratio
     from ..report.tables import write_table
 
     rows = []
     for name, d in eval_dirs.items():
         doc = json.loads((Path(d) / "evaluation.json").read_text())
-        H, models = doc["horizon"], doc["models"]
-        base = models["rate_frozen"]
-        names = list(models)[2:]
-        labels = dict(zip(names, ["nominal", "extended"] if len(names) == 2 else ["nominal", "extended", "hybrid"]))
+        H, models, label = doc["horizon"], doc["models"], labels(doc)
         for model, block in models.items():
-            row = {"set": name, "held-out flights": len(doc["flights"]), "model": labels.get(model, model)}
+            row = {"set": name, "held-out flights": len(doc["flights"]), "model": label[model],
+                   "horizon (s)": round(H * doc["dt"], 6)}
             for q in rollout.QUANTITIES:
-                x, b = rollout.at(block, H, q), rollout.at(base, H, q)
-                row[f"{q}@{H}"] = x
-                row[f"{q} / rate_frozen"] = None if x is None or not b else x / b
+                row[f"{q}@{H}"] = rollout.at(block, H, q)
+                row[f"{q} / rate_frozen"] = ratio(models, model, q, H)
             rows.append(row)
     df = pd.DataFrame(rows)
     write_table(df, table, title="Rollout on held-out flights (qr evaluate; ratio < 1: better than the "

@@ -17,7 +17,8 @@ from pathlib import Path
 
 from .. import tracking
 from ..atomic import atomic_path, write_json
-from ..config import compose, hydra_app, to_dict, vehicle_path
+from ..config import compose, hydra_app, to_dict
+from ..shipped import vehicle_file as find_vehicle
 from ..diagnose.crossfit import airborne_tuning, fixed_settings
 from ..errors import QrInputError
 from ..estimation import estimate
@@ -113,7 +114,7 @@ def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), na
                        crossfit_out=None) -> dict:
     """Compose the Hydra config with ``overrides`` (``['filter=auto']``) and run :func:`run_filter`."""
     cfg = to_dict(compose(list(overrides)))
-    return run_filter(flight_path, vehicle_file or vehicle_path(cfg["vehicle"]), out, nis_out, cfg["filter"], name,
+    return run_filter(flight_path, vehicle_file or find_vehicle(cfg["vehicle"]), out, nis_out, cfg["filter"], name,
                       track=track, crossfit_out=crossfit_out)
 
 
@@ -161,7 +162,7 @@ def _main(cfg) -> None:
     if not f.get("flight"):
         raise QrInputError(None, "no flight given", "add filter.flight=PATH (a canonical CSV or Parquet flight)")
     out = Path(f.get("out") or Path(c["results"]) / "filter" / f"{Path(f['flight']).stem}.parquet")
-    report = run_filter(f["flight"], vehicle_path(f.get("vehicle") or c["vehicle"]), out, nis_path(out), f,
+    report = run_filter(f["flight"], find_vehicle(f.get("vehicle") or c["vehicle"]), out, nis_path(out), f,
                         progress=True)
     flagged = ", ".join(report["inconsistent"]) or "none"
     print(f"wrote {out} and {nis_path(out)} (filter={report['filter']}; NIS-inconsistent: {flagged})")

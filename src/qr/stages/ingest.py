@@ -14,7 +14,6 @@ import pandas as pd
 
 from ..errors import QrInputError
 from ..ingest import read_log
-from ..ingest.summary import flight_summary
 
 
 def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False,
@@ -27,11 +26,12 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
     ``align`` applied. The workflow's ingest does neither (nothing reads the offset there)."""
     from .. import conventions
     from ..flight import write_flight
-    from ..ingest import align as align_mod
 
     df = read_log(src, vehicle, fmt, topics)
     conventions.require(df, vehicle, src, skip_checks, "--skip-check {name}")
     if align or report_offsets:
+        from ..ingest import align as align_mod  # (scipy.signal: after the log is read)
+
         found = align_mod.offsets(df, vehicle)
         if align:
             df = align_mod.apply(df, found)
@@ -58,6 +58,7 @@ def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataF
     """``qr summary``: one row per flight file, ``out`` (CSV) and the same table beside it as Markdown."""
     from ..atomic import atomic_path, write_text
     from ..flight import read_flight
+    from ..ingest.summary import flight_summary  # (imported here: qr ingest needs none of it)
     from ..outputs import check_out_file
     from ..vehicle import load_vehicle
 
@@ -77,6 +78,7 @@ def write_ingest_summary(sets: dict, vehicles: dict, table_path, by_set_path, fi
     ``sets`` maps a set name to its canonical flight files, ``vehicles`` to its vehicle file.
     """
     from .. import tracking
+    from ..ingest.summary import flight_summary
     from ..flight import read_flight
     from ..report import figures
     from ..report.tables import write_table

@@ -49,7 +49,7 @@ except ImportError:  # pragma: no cover
 STAGE = "learn"
 PARENT_FILE = ".mlflow_parent"
 RUNS_CSV = "runs.csv"
-LEARN_KEYS = ("target", "inputs", "dataset", "row")  # the config group `learn` (conf/learn/), logged as params
+LEARN_KEYS = ("target", "inputs", "dataset", "vehicle", "row")  # the group `learn` (conf/learn/), logged as params
 LOGGED = ("split", "model", "seed")
 
 
@@ -130,7 +130,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
     tags = {"qr.run": name}
     if parent_id:
         tags["mlflow.parentRunId"] = parent_id
-    table = datasets.read_table(learn["dataset"])  # a missing or wrong table: one line, before MLflow
+    table = datasets.read_table(learn["dataset"], learn.get("vehicle"))  # wrong: one line, before MLflow
     with tracking.run(STAGE, name, config=logged, inputs=[learn["dataset"]], tags=tags) as tracked:
         tracked.dataset(learn["dataset"], table)
         X, y = datasets.xy(table, inputs, target)
@@ -157,6 +157,7 @@ def run(cfg: dict, out, name: str = "run", parent_id: str | None = None) -> dict
         write_json(run_json, plain(record))
         tracked.tags({"qr.leaks_target": str(leaks).lower(), "qr.kind": model.kind, "qr.target": target})
         tracked.metrics(metrics)
+        tracked.describe(outcome(record))
         if model.kind == "gpr":
             tracked.metrics(_hyper_metrics(model.info["hyperparameters"], target))
         for f in sorted(Path(model_dir).iterdir()):
@@ -228,17 +229,33 @@ def _main(cfg) -> float:
     parent_id = parent.read_text().strip() if hc.mode.name == "MULTIRUN" and parent.exists() else None
     record = run(plain, out, job_name(plain, hc), parent_id)
     m = record["metrics"]
-    print(f"{record['name']}: {record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
-          f"({100 * m['ratio']:.1f} % of nominal {m['nominal_rmse']:.4g}), "
-          f"{'LEAKS TARGET, ' if record['leaks_target'] else ''}{m['train_time_s']:.2f} s", file=sys.stderr)
+    sweep = hc.mode.name == "MULTIRUN"  # a job's line: its own settings, on a line of its own beside the bar
+    lead = f"\n{record['name']} ({' '.join(hc.overrides.task)})" if sweep else record["name"]
+    print(f"{lead}: {outcome(record)}, {m['train_time_s']:.2f} s", file=sys.stderr)
     return m["rmse"]
+
+
+def outcome(record: dict) -> str:
+    """A run's result in words, from its numbers (its line on the terminal, its MLflow description)."""
+    m = record["metrics"]
+    return (f"{record['kind']} {record['inputs']} -> {record['target']}: test RMSE {m['rmse']:.4g} "
+            f"({100 * m['ratio']:.1f} % of nominal {m['nominal_rmse']:.4g})"
+            + (", LEAKS TARGET" if record["leaks_target"] else ""))
+
+
+def _precheck(cfg: dict) -> None:
+    """What a run needs, checked before anything is written: a known target and inputs, a learning table
+    (or state table) that exists."""
+    datasets.check_target(cfg["learn"]["target"])
+    datasets.check_inputs(cfg["learn"]["inputs"])
+    datasets.check_dataset(cfg["learn"]["dataset"])
 
 
 def main() -> None:
     """``qr learn`` / ``python -m qr.learn`` (``python -m qr.train``, the thesis-era name)."""
     from ..config import hydra_app
 
-    hydra_app("learn", _main)
+    hydra_app("learn", _main, _precheck)
 
 
 
@@ -365,6 +382,8 @@ class LearnSweep(Callback):
             metrics.update({"best_rmse": b["rmse"], "best_ratio": b["ratio"],
                             "best_row": float(b["row"]) if pd.notna(b["row"]) else math.nan})
             self._run.tags({"qr.best_run": b["name"]})
+            self._run.describe(f"{len(runs)} runs; the best that does not leak its target: {b['name']}, test RMSE "
+                               f"{b['rmse']:.4g} ({100 * b['ratio']:.1f} % of the nominal model's)")
         self._run.metrics(metrics)
         self._run.artifact(out / RUNS_CSV)
         self._close(None)

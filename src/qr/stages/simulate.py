@@ -36,6 +36,7 @@ from ..sim import disturbance as dist
 from ..sim.bezier import from_config as trajectory_from_config
 from ..sim.control import Gains
 from ..sim.study import ORACLE, Limits, Plant, SimSettings, fly, identification_data
+from ..vehicle import load_vehicle
 
 log = logging.getLogger("qr.simulate")
 FIGURES = {"tracking": "sim_tracking.png", "euler": "sim_euler.png", "rmse": "sim_rmse.png"}
@@ -54,16 +55,6 @@ def settings(sim: dict) -> SimSettings:
         raise QrInputError("simulate.rate", f"{rate} Hz is below 500 Hz", "simulate at 500 Hz or more (RK4 + rotor lag)")
     return SimSettings(rate=rate, log_rate=float(sim.get("log_rate", 100.0)), duration=sim.get("duration"),
                        gains=Gains(**(sim.get("gains") or {})), limits=Limits(**(sim.get("limits") or {})))
-
-
-def load_vehicle_any(name_or_path):
-    from ..config import vehicle_path
-    from ..vehicle import load_vehicle
-
-    p = vehicle_path(str(name_or_path))
-    if not p.exists():
-        raise QrInputError(p, "vehicle file not found", "give a name in conf/vehicle/ or a path to a vehicle YAML")
-    return load_vehicle(p)
 
 
 def parse_effects(items, where, vehicle=None) -> list[dict]:
@@ -152,7 +143,7 @@ def _no_leak(model, where):
 
 def build_source(name: str, cfg: dict, sim: dict) -> Source:
     where = f"simulate.sources.{name}"
-    veh = load_vehicle_any(cfg.get("vehicle") or sim["vehicle"])
+    veh = load_vehicle(cfg.get("vehicle") or sim["vehicle"])
     effects = validate_effect_list(veh.effects, where) + parse_effects((cfg.get("plant") or {}).get("effects"), where,
                                                                        veh)
     nominal = veh.with_changes(effects=[]) if veh.effects else veh
@@ -282,7 +273,7 @@ def stability_study(sim: dict, tracked=None, progress: bool = True):
     from ..sim.stability import analyse, format_eigs, growth_per_step
 
     st = sim.get("stability") or {}
-    veh = load_vehicle_any(st.get("vehicle") or sim["vehicle"])
+    veh = load_vehicle(st.get("vehicle") or sim["vehicle"])
     veh = veh.with_changes(effects=[]) if veh.effects else veh
     cfg = settings(sim)
     if st.get("duration_s"):
