@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from qr.sim import plant as pl
 
-SUBSTEPS = 8
+SUBSTEPS = 16
 TIGHT = {"method": "DOP853", "rtol": 1e-10, "atol": 1e-12}
 
 
