@@ -27,7 +27,7 @@ TIMESTEP = 0.001  # s; MuJoCo's RK4 (the rigid body is smooth: 4th order, like q
 
 def mjcf(vehicle, pp: mp.Plant, path: str, version: str) -> str:
     name = quoteattr(vehicle.name)
-    lines = [f"<!-- {vehicle.name}: written by qr export {path} --to mujoco (qr {version}); see mapping.md.",
+    lines = [f"<!-- {vehicle.name.replace('--', '- -')}: written by qr {version} (qr export, for mujoco); see mapping.md.",
              "     Actuators take ctrl = rotor speed squared, (rad/s)^2: thrust_i = gear ctrl (N), yaw moment_i = gear ctrl (N m). -->",
              f"<mujoco model={name}>",
              '  <compiler angle="radian" inertiafromgeom="false"/>',

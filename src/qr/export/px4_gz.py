@@ -23,6 +23,7 @@ moment as ``CT p × a - CT KM a``: ``CA_ROTOR<i>_KM = +momentConstant`` for a cc
 from __future__ import annotations
 
 from dataclasses import replace
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -76,7 +77,7 @@ def model_sdf(vehicle, pp: mp.Plant, path: str, version: str, model: str) -> str
     m_b, c_b, J_b = base_link(pp)
     m_r, j_r = rotor_link_inertia(pp)
     L = [f'<?xml version="1.0" encoding="UTF-8"?>',
-         f"<!-- {vehicle.name}: written by qr export {path} --to px4-gz (qr {version}); see ../mapping.md -->",
+         f"<!-- {vehicle.name.replace('--', '- -')}: written by qr {version} (qr export, for px4-gz); see ../mapping.md -->",
          "<sdf version='1.9'>", f"  <model name='{model}'>", "    <self_collide>false</self_collide>",
          "    <static>false</static>", '    <link name="base_link">', "      <inertial>",
          f"        <pose>{g(c_b[0])} {g(c_b[1])} {g(c_b[2])} 0 0 0</pose>", f"        <mass>{g(m_b)}</mass>",
@@ -143,7 +144,7 @@ def params_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
 def model_config(vehicle, model: str, version: str) -> str:
     return "\n".join(['<?xml version="1.0"?>', "<model>", f"  <name>{model}</name>", "  <version>1.0</version>",
                       "  <sdf version='1.9'>model.sdf</sdf>", "  <author>", "    <name>qr export</name>",
-                      "  </author>", f"  <description>{vehicle.name}, exported by qr {version} (see ../mapping.md)"
+                      "  </author>", f"  <description>{escape(vehicle.name)}, exported by qr {version} (see ../mapping.md)"
                       "</description>", "</model>"]) + "\n"
 
 

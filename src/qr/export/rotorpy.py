@@ -60,6 +60,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rotor_pos": {f"r{i + 1}": list(r) for i, r in enumerate(pp.rotor_pos)},
         "rotor_directions": list(pp.yaw_signs),
         "rI": [0.0, 0.0, 0.0],
+        "rotor_radius": display_radius(pp),
         "c_Dx": P[pl.P_QUAD], "c_Dy": P[pl.P_QUAD + 1], "c_Dz": P[pl.P_QUAD + 2],
         "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
         "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": 0.0,
@@ -67,6 +68,14 @@ def quad_params(pp: mp.Plant) -> dict:
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
         "motor_noise_std": 0.0, **DEFAULT_GAINS,
     }
+
+
+def display_radius(pp: mp.Plant) -> float:
+    """RotorPy draws rotors of this radius (m; no physics uses it): the largest that do not overlap, half the
+    smallest distance between two rotor axes (qr's files have no propeller size)."""
+    r = pp.rotor_xy
+    d = np.linalg.norm(r[:, None] - r[None], axis=-1)
+    return float(d[np.triu_indices(len(r), 1)].min() / 2)
 
 
 def qr_terms(pp: mp.Plant) -> dict:
@@ -234,6 +243,8 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         Row("(none: no translational lift, no vertical rotor drag in qr)", "-", "k_h, k_z", "0, 0", EXACT,
             "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over"),
         Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG"),
+        Row("(none: qr has no propeller size)", "-", "rotor_radius", g(qp["rotor_radius"]) + " m", EXACT,
+            "drawing only in RotorPy: half the smallest distance between two rotor axes"),
         Row("(RotorPy's low-level gains)", "-", "k_w, k_v, kp_att, kd_att",
             ", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att")), EXACT,
             "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)"),
