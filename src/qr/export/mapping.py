@@ -167,7 +167,12 @@ def common_rows(vehicle, pp: Plant, keys: dict[str, tuple[str, str]]) -> list[Ro
     u = vehicle.rotor_speed_unit
     f = pp.unit
     conv = "1" if u == "rad_s" else "2π/60 rad/s per rpm"
-    return [
+    extra = []
+    if vehicle.command_map is not None:
+        extra.append(Row("command_map", "a + b c + k c² N", "-", "-", IMPOSSIBLE,
+                         "the simulators take rotor speeds: give them qr's equivalent speeds u = sqrt(F / C_T) "
+                         "(qr ingest's), not the motor commands"))
+    return extra + [
         Row("rotor_speed_unit", u, "-", "rad/s", EXACT, f"ω [rad/s] = {g(f)} u [{u}] ({conv})"),
         Row("mass", g(vehicle.mass) + " kg", *keys["mass"], EXACT,
             "kg; mass_error added" if "mass_error" in present(vehicle) else "kg"),
