@@ -108,7 +108,7 @@ def _literal(x) -> str:
     if isinstance(x, (list, tuple)):
         if x and isinstance(x[0], (list, tuple)):
             return "[" + ", ".join(_literal(v) for v in x) + "]"
-        return f"np.array({_vec(x)})"
+        return f"np.array({_vec(x)}, float)"
     if isinstance(x, (int, np.integer)):
         return str(int(x))
     return g(x)
