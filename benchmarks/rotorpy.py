@@ -1,7 +1,7 @@
 """What does `qr diagnose` name on flights RotorPy simulates?  Each of RotorPy's aerodynamic terms alone,
 all together, and none.
 
-    .venv/bin/python benchmarks/rotorpy.py               # 7 configurations x 3 seeds, 2 x 30 s flights each (~15 min)
+    .venv/bin/python benchmarks/rotorpy.py               # 7 configurations x 3 seeds, 2 x 30 s flights each (~10 min)
     .venv/bin/python benchmarks/rotorpy.py --seeds 1 --duration 20
 
 RotorPy's own Hummingbird (rotorpy/vehicles/hummingbird_params.py) flown by its SE3Control along two of
