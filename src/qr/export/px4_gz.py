@@ -76,7 +76,7 @@ def _inertia_xml(J: np.ndarray, indent: str) -> list[str]:
 def model_sdf(vehicle, pp: mp.Plant, path: str, version: str, model: str) -> str:
     m_b, c_b, J_b = base_link(pp)
     m_r, j_r = rotor_link_inertia(pp)
-    L = [f'<?xml version="1.0" encoding="UTF-8"?>',
+    L = ['<?xml version="1.0" encoding="UTF-8"?>',
          f"<!-- {vehicle.name.replace('--', '- -')}: written by qr {version} (qr export, for px4-gz); see ../mapping.md -->",
          "<sdf version='1.9'>", f"  <model name='{model}'>", "    <self_collide>false</self_collide>",
          "    <static>false</static>", '    <link name="base_link">', "      <inertial>",

@@ -205,7 +205,6 @@ class QrMultirotor(Multirotor):
 
 def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> str:
     params = quad_params(pp)
-    params["rotor_pos"] = {k: v for k, v in params["rotor_pos"].items()}
     lines = []
     for k, v in params.items():
         if k == "rotor_pos":
@@ -273,9 +272,9 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            "alone has their mean k_eta"))
         elif name == "rotor_drag":
             out.append(Row(name, val(name), "k_d", g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
-                           f"k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
-                           f"airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
-                           f"and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly"))
+                           "k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
+                           "airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
+                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly"))
         elif name == "blade_flapping":
             out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
                            f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
