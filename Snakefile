@@ -9,6 +9,7 @@ include: "workflow/rules/learn.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/simulate.smk"
+include: "workflow/rules/export.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -25,3 +26,4 @@ rule all:
         rules.diagnosis_summary.output,
         rules.evaluation_summary.output,
         rules.overview.output,
+        expand(rules.export.output, target=EXPORT_TARGETS),

@@ -18,6 +18,7 @@ commands:
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
   evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
+  export     a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo, with mapping.md
   filter     Kalman filters / smoother (Hydra overrides)
   learn      train and test residual models, -m for a sweep (Hydra overrides)
   simulate   closed-loop study and stability analysis (Hydra overrides)
@@ -31,6 +32,7 @@ examples:
   qr evaluate synth1/flight.csv --vehicle synth1/vehicle.yaml --vehicle diag1/extended_vehicle.yaml --out eval1
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
+  qr export diag1/extended_vehicle.yaml --to rotorpy --out sim_rotorpy
 
 stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a sweep):
   qr filter     Kalman filters / smoother: canonical flight -> state table + NIS report
@@ -39,7 +41,7 @@ stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a swe
       qr learn -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
   qr simulate   closed-loop tracking study and stability analysis (thesis Chapter 5)
       qr simulate simulate.task=stability
-  (python -m qr.<stage> ARGS = qr <stage> ARGS for ingest, filter, learn, diagnose, simulate, evaluate;
+  (python -m qr.<stage> ARGS = qr <stage> ARGS for ingest, filter, learn, diagnose, simulate, evaluate, export;
    python -m qr.train = qr learn)
 
 the whole workflow (Snakefile; docs/workflow.md):
@@ -124,6 +126,13 @@ def _parser() -> argparse.ArgumentParser:
                      "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
                      vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
                                                         "filters and is the references' nominal)"))
+    s = sub.add_parser("export", help="a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo (docs/spec/export.md)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXPORT_EPILOG)
+    s.add_argument("vehicle", metavar="VEHICLE.yaml", help="vehicle YAML: nominal, extended or hybrid (as qr "
+                   "diagnose and qr learn residual write them), or a shipped vehicle's name")
+    s.add_argument("--to", required=True, metavar="rotorpy|px4-gz|mujoco", help="the simulator")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
     for name, (_, help) in HYDRA_STAGES.items():  # listed here, parsed by Hydra (_parse)
         sub.add_parser(name, help=help, add_help=False)
     p.commands = sub.choices  # name -> subparser (for _parse)
@@ -157,6 +166,22 @@ def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> N
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
 
+
+EXPORT_EPILOG = """\
+writes OUTDIR/mapping.md (every parameter and named effect: the simulator's key, its value in the
+simulator's units, exact / approximate (with the condition) / impossible (with its size)) and:
+  --to rotorpy   OUTDIR/<name>_params.py: quad_params for rotorpy.vehicles.multirotor.Multirotor, and
+                 QrMultirotor, a subclass adding the terms RotorPy has no key for (exact: qr's plant)
+  --to px4-gz    OUTDIR/<name>/model.config, model.sdf (Gazebo Sim, one MulticopterMotorModel per rotor),
+                 OUTDIR/<name>.params (PX4: CA_ROTOR*_PX/PY/KM, SIM_GZ_EC_MIN/MAX; QGroundControl format)
+  --to mujoco    OUTDIR/<name>.xml: MJCF body (mass, inertia, CG), thrust and yaw-moment actuators per rotor
+                 (ctrl = rotor speed squared, (rad/s)^2)
+
+examples:
+  qr export diag/extended_vehicle.yaml --to rotorpy --out sim_rotorpy
+  qr export conf/vehicle/crazyflie21_brushless.yaml --to px4-gz --out sim_gz
+  qr export crazyflie21_brushless --to mujoco --out sim_mujoco
+units, conventions and their derivations: docs/export.md"""
 
 OUT_DIR_HELP = ("output folder: new, empty, or a previous qr output (only the files qr wrote there are "
                 "replaced)")
@@ -257,6 +282,13 @@ def _cmd_evaluate(a):
     run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
+def _cmd_export(a):
+    from .stages.export import run_export
+
+    for p in run_export(a.vehicle, a.to, a.out, force=a.force):
+        print(p)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None):
     sys.stderr.write(_format_warning(message, category, filename, lineno))
 
@@ -295,7 +327,7 @@ def _main(argv):
     with sigterm_raises():
         try:
             {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
-             "evaluate": _cmd_evaluate, **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
+             "evaluate": _cmd_evaluate, "export": _cmd_export, **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT

@@ -31,6 +31,16 @@ def test_each_stage_is_found_by_its_name(stage):
     assert (ROOT / "docs" / f"{stage}.md").exists()
 
 
+def test_qr_export_is_found_like_a_stage():
+    """``qr export`` (issue 27) has no settings of its own (no config group); the rest of the house it has."""
+    module = importlib.import_module("qr.stages.export")
+    assert module.__doc__ and "export" in module.__doc__.split("\n")[0].lower()
+    assert (SRC / "export" / "__main__.py").exists()
+    assert (ROOT / "workflow" / "rules" / "export.smk").exists()
+    assert list((ROOT / "tests" / "export").glob("test_*.py"))
+    assert (ROOT / "docs" / "export.md").exists()
+
+
 def _imports() -> dict[str, set[str]]:
     """Every module of src/qr and the qr modules it imports (at the top or inside a function)."""
     mods = {}

@@ -1,0 +1,237 @@
+"""``qr export --to px4-gz``: a Gazebo Sim model folder for PX4 SITL, and the PX4 parameters that agree with it.
+
+Element names follow the stock PX4 x500 model (PX4-gazebo-models, models/x500 and x500_base): a
+``base_link`` with the inertial, ``rotor_<i>`` links on revolute ``rotor_<i>_joint``s about z, one
+``gz::sim::systems::MulticopterMotorModel`` plugin per rotor.  That plugin (gz-sim
+MulticopterMotorModel.cc), with the real rotor speed ω in rad/s (joint speed × rotorVelocitySlowdownSim)::
+
+    thrust        motorConstant ω²                    along the rotor link's z
+    drag torque   -turningDirection · momentConstant · thrust   about the rotor's z   (ccw = +1, cw = -1)
+    rotor drag    -|ω| rotorDragCoefficient v⊥        at the rotor link (v⊥: its airspeed across the axis)
+    rolling mom.  -|ω| rollingMomentCoefficient v⊥    a torque ABOUT the direction of v⊥
+    motor         first order, timeConstantUp / timeConstantDown, capped at maxRotVelocity
+
+so ``motorConstant = C_T / f²``, ``momentConstant = C_Q / C_T`` (m), ``turningDirection = ccw`` where
+qr's ``yaw_sign = -1`` (the reaction torque opposes the spin), ``rotorDragCoefficient = k / f``.
+Blade flapping is a torque about ``v × e_z`` (qr: ``k [v_y, -v_x, 0]``), perpendicular to the
+rolling moment's axis ``v``: the two are different terms, so ``rollingMomentCoefficient`` is 0 and
+flapping is listed as impossible.  PX4 (FRD body frame, thrust axis ``(0, 0, -1)``) computes a rotor's
+moment as ``CT p × a - CT KM a``: ``CA_ROTOR<i>_KM = +momentConstant`` for a ccw rotor and
+``CA_ROTOR<i>_PX = x - r_x``, ``PY = -(y - r_y)`` (relative to the CG, y flipped).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from ..sim import plant as pl
+from . import mapping as mp
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
+
+ROTOR_MASS_FRACTION = 0.0025  # of the vehicle's mass, per rotor link (Gazebo needs a mass on every link)
+SLOWDOWN = 10  # rotorVelocitySlowdownSim, as the x500 (the joint turns 10x slower than the real rotor)
+PLUGIN = ("gz-sim-multicopter-motor-model-system", "gz::sim::systems::MulticopterMotorModel")
+PARAM_REAL32, PARAM_INT32 = 9, 6  # QGroundControl parameter file types
+
+
+def turning(yaw_sign: float) -> str:
+    return "ccw" if yaw_sign < 0 else "cw"
+
+
+def rotor_link_inertia(pp: mp.Plant) -> tuple[float, np.ndarray]:
+    """Mass (kg) and principal inertia (kg m²) of a rotor link: a thin rod of the arm's half length."""
+    m_r = ROTOR_MASS_FRACTION * pp.mass
+    L = pp.arm / 2
+    i_rod = m_r * L**2 / 12
+    return m_r, np.array([m_r * 1e-4 * L**2, i_rod, i_rod])
+
+
+def base_link(pp: mp.Plant) -> tuple[float, np.ndarray, np.ndarray]:
+    """Mass, CoM (body, 3) and inertia tensor (3 x 3, about its CoM) of base_link such that base_link and
+    the rotor links together have the vehicle's mass, its CG and its principal inertia about the CG."""
+    m_r, j_r = rotor_link_inertia(pp)
+    n = len(pp.yaw_signs)
+    m_b = pp.mass - n * m_r
+    c = np.array([pp.cg[0], pp.cg[1], 0.0])
+    r = np.zeros((n, 3))
+    r[:, :2] = pp.rotor_xy
+    c_b = (pp.mass * c - m_r * r.sum(axis=0)) / m_b
+    J = np.diag(pp.inertia).astype(float)
+
+    def shift(m, d):  # parallel-axis term
+        return m * (d @ d * np.eye(3) - np.outer(d, d))
+
+    J_b = J - sum(np.diag(j_r) + shift(m_r, ri - c) for ri in r) - shift(m_b, c_b - c)
+    return m_b, c_b, J_b
+
+
+def _inertia_xml(J: np.ndarray, indent: str) -> list[str]:
+    names = (("ixx", 0, 0), ("ixy", 0, 1), ("ixz", 0, 2), ("iyy", 1, 1), ("iyz", 1, 2), ("izz", 2, 2))
+    return [f"{indent}<{k}>{g(J[i, j])}</{k}>" for k, i, j in names]
+
+
+def model_sdf(vehicle, pp: mp.Plant, path: str, version: str, model: str) -> str:
+    m_b, c_b, J_b = base_link(pp)
+    m_r, j_r = rotor_link_inertia(pp)
+    L = ['<?xml version="1.0" encoding="UTF-8"?>',
+         f"<!-- {vehicle.name.replace('--', '- -')}: written by qr {version} (qr export, for px4-gz); see ../mapping.md -->",
+         "<sdf version='1.9'>", f"  <model name='{model}'>", "    <self_collide>false</self_collide>",
+         "    <static>false</static>", '    <link name="base_link">', "      <inertial>",
+         f"        <pose>{g(c_b[0])} {g(c_b[1])} {g(c_b[2])} 0 0 0</pose>", f"        <mass>{g(m_b)}</mass>",
+         "        <inertia>", *_inertia_xml(J_b, "          "), "        </inertia>", "      </inertial>",
+         "      <gravity>true</gravity>", "      <velocity_decay/>",
+         '      <sensor name="air_pressure_sensor" type="air_pressure">',
+         "        <always_on>1</always_on>", "        <update_rate>50</update_rate>", "      </sensor>",
+         '      <sensor name="imu_sensor" type="imu">', "        <always_on>1</always_on>",
+         "        <update_rate>250</update_rate>", "      </sensor>",
+         '      <sensor name="navsat_sensor" type="navsat">', "        <always_on>1</always_on>",
+         "        <update_rate>30</update_rate>", "      </sensor>", "    </link>"]
+    for i, (x, y) in enumerate(pp.rotor_xy):
+        L += [f'    <link name="rotor_{i}">', "      <gravity>true</gravity>", "      <self_collide>false</self_collide>",
+              "      <velocity_decay/>", f"      <pose>{g(x)} {g(y)} 0 0 0 0</pose>", "      <inertial>",
+              f"        <mass>{g(m_r)}</mass>", "        <inertia>",
+              *_inertia_xml(np.diag(j_r), "          "), "        </inertia>", "      </inertial>", "    </link>",
+              f'    <joint name="rotor_{i}_joint" type="revolute">', "      <parent>base_link</parent>",
+              f"      <child>rotor_{i}</child>", "      <axis>", "        <xyz>0 0 1</xyz>", "        <limit>",
+              "          <lower>-1e+16</lower>", "          <upper>1e+16</upper>", "        </limit>",
+              "      </axis>", "    </joint>"]
+    for i, p in enumerate(plugin_values(pp)):
+        L += [f'    <plugin filename="{PLUGIN[0]}"', f'      name="{PLUGIN[1]}">',
+              *(f"      <{k}>{v}</{k}>" for k, v in p.items()), "    </plugin>"]
+    L += ["  </model>", "</sdf>"]
+    return "\n".join(L) + "\n"
+
+
+def plugin_values(pp: mp.Plant) -> list[dict]:
+    """The MulticopterMotorModel elements of each rotor, in the x500's order."""
+    P = pp.P
+    out = []
+    for i, (k, s) in enumerate(zip(pp.k_thrust, pp.yaw_signs)):
+        out.append({"jointName": f"rotor_{i}_joint", "linkName": f"rotor_{i}", "turningDirection": turning(s),
+                    "timeConstantUp": g(pp.tau_m), "timeConstantDown": g(pp.tau_m),
+                    "maxRotVelocity": g(pp.speed_max), "motorConstant": g(k), "momentConstant": g(pp.k_yaw / k),
+                    "commandSubTopic": "command/motor_speed", "motorNumber": str(i),
+                    "rotorDragCoefficient": g(P[pl.P_RDRAG] / pp.unit), "rollingMomentCoefficient": "0",
+                    "rotorVelocitySlowdownSim": str(SLOWDOWN), "motorType": "velocity"})
+    return out
+
+
+def px4_params(pp: mp.Plant) -> list[tuple[str, float | int, int]]:
+    """(name, value, type) of the PX4 parameters that must agree with the model."""
+    out: list[tuple[str, float | int, int]] = [("CA_ROTOR_COUNT", len(pp.yaw_signs), PARAM_INT32)]
+    for i, ((x, y), k, s) in enumerate(zip(pp.rotor_xy, pp.k_thrust, pp.yaw_signs)):
+        out += [(f"CA_ROTOR{i}_PX", x - pp.cg[0], PARAM_REAL32), (f"CA_ROTOR{i}_PY", -(y - pp.cg[1]), PARAM_REAL32),
+                (f"CA_ROTOR{i}_PZ", 0.0, PARAM_REAL32), (f"CA_ROTOR{i}_KM", -s * pp.k_yaw / k, PARAM_REAL32)]
+    for i in range(len(pp.yaw_signs)):
+        out += [(f"SIM_GZ_EC_FUNC{i + 1}", 101 + i, PARAM_INT32),
+                (f"SIM_GZ_EC_MIN{i + 1}", int(round(pp.speed_min)), PARAM_INT32),
+                (f"SIM_GZ_EC_MAX{i + 1}", int(round(pp.speed_max)), PARAM_INT32)]
+    return out
+
+
+def params_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
+    """A QGroundControl parameter file (vehicle id, component id, name, value, type; tab-separated)."""
+    lines = [f"# {vehicle.name}: written by qr export {path} --to px4-gz (qr {version}); see mapping.md",
+             "# Vehicle-Id\tComponent-Id\tName\tValue\tType"]
+    for name, val, typ in px4_params(pp):
+        lines.append(f"1\t1\t{name}\t{g(val) if typ == PARAM_REAL32 else int(val)}\t{typ}")
+    return "\n".join(lines) + "\n"
+
+
+def model_config(vehicle, model: str, version: str) -> str:
+    return "\n".join(['<?xml version="1.0"?>', "<model>", f"  <name>{model}</name>", "  <version>1.0</version>",
+                      "  <sdf version='1.9'>model.sdf</sdf>", "  <author>", "    <name>qr export</name>",
+                      "  </author>", f"  <description>{escape(vehicle.name)}, exported by qr {version} (see ../mapping.md)"
+                      "</description>", "</model>"]) + "\n"
+
+
+def rows(vehicle, pp: mp.Plant) -> list[Row]:
+    m_b, c_b, _ = base_link(pp)
+    m_r, _ = rotor_link_inertia(pp)
+    plug = plugin_values(pp)
+    out = mp.common_rows(vehicle, pp, {
+        "mass": ("base_link + rotor_i inertial/mass", f"{g(m_b)} + 4 × {g(m_r)} kg"),
+        "inertia": ("base_link inertial/inertia (+ rotor links)", "(composed, see note)"),
+        "thrust_coeff": ("motorConstant", ", ".join(p["motorConstant"] for p in plug) + " N/(rad/s)²"),
+        "torque_coeff": ("momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug) + " m"),
+    })
+    out[2] = replace(out[2], note=f"rotor links {100 * ROTOR_MASS_FRACTION:g} % of the mass each; base_link "
+                 "the rest, its CoM and inertia chosen so that the links together have the vehicle's CG and inertia")
+    out[3] = replace(out[3], note="base_link's tensor = J - rotor links' (own + parallel-axis) - base's own shift "
+                 "to the CG: the composite has the vehicle's principal inertia about the CG")
+    out += [
+        Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "turningDirection",
+            ", ".join(p["turningDirection"] for p in plug), EXACT,
+            "gz drag torque = -turningDirection (ccw +1) momentConstant thrust: yaw_sign -1 ↔ ccw"),
+        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in pp.rotor_xy), "rotor_<i> pose; "
+            "CA_ROTOR<i>_PX/PY", ", ".join(f"({g(x - pp.cg[0])}, {g(-(y - pp.cg[1]))})" for x, y in pp.rotor_xy),
+            EXACT, "links at (x, y, 0) in base_link; PX4 in FRD relative to the CG: PX = x - rx, PY = -(y - ry)"),
+        Row("torque_coeff sign", "yaw_sign", "CA_ROTOR<i>_KM", ", ".join(g(-s * pp.k_yaw / k) for k, s in
+            zip(pp.k_thrust, pp.yaw_signs)), EXACT, "PX4's moment CT p × a - CT KM a, a = (0, 0, -1) FRD: "
+            "KM = -yaw_sign C_Q / C_T (positive for ccw, as PX4 documents)"),
+        Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "timeConstantUp / Down",
+            f"{g(pp.tau_m)} / {g(pp.tau_m)} s", EXACT, "qr's lag is the same up and down"),
+        Row("rotor_speed_max", f"{g(vehicle.rotor_speed_max)} {vehicle.rotor_speed_unit}",
+            "maxRotVelocity; SIM_GZ_EC_MAX<i>", f"{g(pp.speed_max)}; {int(round(pp.speed_max))} rad/s", EXACT,
+            "× f (PX4's parameter is an integer: rounded)"),
+        Row("rotor_speed_min", f"{g(vehicle.rotor_speed_min)} {vehicle.rotor_speed_unit}", "SIM_GZ_EC_MIN<i>",
+            f"{int(round(pp.speed_min))} rad/s", EXACT, "× f, rounded (PX4 maps its output range onto [MIN, MAX])"),
+        Row("(none)", "-", "rollingMomentCoefficient", "0", EXACT,
+            "gz's rolling moment is a torque about v⊥; qr has no such term (flapping acts about v × e_z)"),
+    ]
+    size = mp.sizes(pp)
+    P = pp.P
+    for name in mp.present(vehicle):
+        val = mp.effect_value(vehicle, name)
+        if name in ("mass_error", "inertia_error"):
+            out.append(Row(name, val, "inertial", "(added)", EXACT, "added to the vehicle's value"))
+        elif name in ("thrust_gain", "motor_imbalance"):
+            out.append(Row(name, val, "motorConstant (per rotor); momentConstant, CA_ROTOR<i>_KM",
+                           ", ".join(p["motorConstant"] for p in plug), EXACT,
+                           "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q / (gain (1 + d_i) C_T) "
+                           "keeps the yaw torque qr's"))
+        elif name == "yaw_torque_gain":
+            out.append(Row(name, val, "momentConstant; CA_ROTOR<i>_KM", g(pp.k_yaw / pp.k_thrust[0]), EXACT,
+                           "gain C_Q / C_T"))
+        elif name == "cg_offset":
+            out.append(Row(name, val, "base_link inertial/pose; CA_ROTOR<i>_PX/PY", f"{g(c_b[0])} {g(c_b[1])} 0",
+                           EXACT, "the composite CG at (rx, ry): the thrusts' moment Γ - c × T = [-ry T, rx T, 0]"))
+        elif name == "rotor_drag":
+            out.append(Row(name, val, "rotorDragCoefficient", plug[0]["rotorDragCoefficient"] + " N s/m per rad/s",
+                           APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
+                           "velocity (v + ω × r_i): exact at equal rotor speeds and zero body rate"))
+        elif name == "blade_flapping":
+            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"torque about v × e_z ({size[name]}); gz's "
+                           "rollingMomentCoefficient acts about v⊥ itself, a different axis: left at 0, flapping "
+                           "left out"))
+        elif name == "marker_offset":
+            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"not a force ({size[name]}): the model's pose is "
+                           "base_link; the tracked point is its pose plus R r"))
+        elif name in size:
+            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"no element of the motor model or the link "
+                           f"({size[name]}): left out"))
+    if P[pl.P_REM_ON]:
+        out.append(Row("torque_remainder", "W (3 x 11)", "-", "-", IMPOSSIBLE,
+                       f"a learned map ({size['torque_remainder']}): left out"))
+    return out
+
+
+def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
+    from ..atomic import write_text
+
+    from .rotorpy import file_stem
+
+    model = file_stem(vehicle)
+    (tmp / model).mkdir()
+    write_text(tmp / model / "model.sdf", model_sdf(vehicle, pp, path, version, model))
+    write_text(tmp / model / "model.config", model_config(vehicle, model, version))
+    write_text(tmp / f"{model}.params", params_text(vehicle, pp, path, version))
+    return [f"{model}/", f"{model}.params"]
+
+
+INTRO = ["The model folder goes on GZ_SIM_RESOURCE_PATH (PX4: Tools/simulation/gz/models/); the .params file "
+         "is QGroundControl's parameter file format. Rotor i of the vehicle file is rotor_<i-1>, motorNumber "
+         "i-1 and PX4's motor i (SIM_GZ_EC_FUNC<i> = 100 + i). f = rad/s per rotor-speed unit."]

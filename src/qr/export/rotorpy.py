@@ -1,0 +1,337 @@
+"""``qr export --to rotorpy``: a RotorPy 3 parameter module, ``<name>_params.py``.
+
+RotorPy's ``Multirotor.compute_body_wrench`` (rotorpy/vehicles/multirotor.py, 3.0.0), in the body
+frame (x forward, z up, like qr's), with ``ω_i`` in rad/s and ``v_i = v_b + ω × r_i`` the airspeed at
+hub ``i`` (``r_i`` = ``rotor_pos`` relative to the CG)::
+
+    thrust     T_i = k_eta ω_i² e_z (+ k_h (v_ix² + v_iy²) e_z: translational lift)
+    rotor drag H_i = -ω_i diag(k_d, k_d, k_z) v_i                     (a force at hub i)
+    flapping   M_i = -k_flap ω_i (v_i × e_z) = -k_flap ω_i [v_iy, -v_ix, 0]
+    parasitic  D   = -|v_b| diag(c_Dx, c_Dy, c_Dz) v_b                 (at the CG)
+    moments    Σ r_i × (T_i + H_i) + Σ rotor_directions_i k_m ω_i² e_z + Σ M_i
+    motors     ω̇_i = (ω_cmd,i - ω_i) / tau_m
+
+Against qr's plant (:mod:`qr.sim.plant`, thesis eq. 4.1 with the catalog's terms) this gives,
+derived term by term (docs/export.md):
+
+- ``k_eta = C_T / f²``, ``k_m = C_Q / f²`` with ``f`` rad/s per vehicle unit; ``rotor_directions_i =
+  yaw_sign_i`` (RotorPy multiplies ``k_m ω²`` by it as the body-z moment: the sign of the reaction
+  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, 0)``: the CG offset is exact there
+  (the thrusts' moment about the CG is ``Γ - c × T``, the catalog's ``[-r_y T, r_x T, 0]``).
+- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (the force is exact; RotorPy applies it at the hubs,
+  adding a yaw moment ``-k_d Σ ω_i (x_i v_iy - y_i v_ix)`` that qr lacks: zero at equal rotor speeds and
+  no yaw rate).
+- blade_flapping ``k [v_y, -v_x, 0]`` → ``k_flap = -k / (4 ω_hover)``: RotorPy's flapping grows with the
+  rotor speed, qr's does not; exact at a rotor-speed sum of ``4 ω_hover`` (relative error
+  ``|Σω / (4 ω_hover) - 1|`` otherwise).  The minus sign: RotorPy's moment is ``-k_flap Σω [v_y, -v_x, 0]``.
+- quadratic_drag ``-c_j |v_j| v_j`` → ``c_Dj = c_j``: exact for airspeed along one body axis; RotorPy's
+  ``c_Dj |v| v_j`` is larger by ``|v| / |v_j|`` otherwise.
+- the rest (linear drag, per-rotor thrust differences, biases, a constant world force, ground effect,
+  the learned torque remainder) has no RotorPy key: the module's ``QrMultirotor`` adds it to the state
+  derivative.  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
+  exact terms, so it integrates qr's plant; ``Multirotor(quad_params)`` alone gives RotorPy's own physics
+  with the mapped coefficients.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..sim import plant as pl
+from . import mapping as mp
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
+
+# RotorPy's low-level gains (for its cmd_ctbr / cmd_vel / cmd_acc / cmd_ctatt abstractions): its own
+# defaults (Multirotor.__init__), scaled to this vehicle's inertia by the controller's own use of J
+DEFAULT_GAINS = {"k_w": 1.0, "k_v": 10.0, "kp_att": 3000.0, "kd_att": 360.0}
+
+
+def _vec(x) -> str:
+    return "[" + ", ".join(g(v) for v in np.ravel(x)) + "]"
+
+
+def quad_params(pp: mp.Plant) -> dict:
+    """The ``quad_params`` dict (plain floats and lists; the module turns vectors into arrays)."""
+    P = pp.P
+    return {
+        "mass": pp.mass, "Ixx": pp.inertia[0], "Iyy": pp.inertia[1], "Izz": pp.inertia[2],
+        "Ixy": 0.0, "Iyz": 0.0, "Ixz": 0.0,
+        "num_rotors": len(pp.yaw_signs),
+        "rotor_pos": {f"r{i + 1}": list(r) for i, r in enumerate(pp.rotor_pos)},
+        "rotor_directions": list(pp.yaw_signs),
+        "rI": [0.0, 0.0, 0.0],
+        "rotor_radius": display_radius(pp),
+        "c_Dx": P[pl.P_QUAD], "c_Dy": P[pl.P_QUAD + 1], "c_Dz": P[pl.P_QUAD + 2],
+        "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
+        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": 0.0,
+        "k_flap": -P[pl.P_FLAP] / (4 * pp.hover),
+        "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
+        "motor_noise_std": 0.0, **DEFAULT_GAINS,
+    }
+
+
+def display_radius(pp: mp.Plant) -> float:
+    """RotorPy draws rotors of this radius (m; no physics uses it): the largest that do not overlap, half the
+    smallest distance between two rotor axes (qr's files have no propeller size)."""
+    r = pp.rotor_xy
+    d = np.linalg.norm(r[:, None] - r[None], axis=-1)
+    return float(d[np.triu_indices(len(r), 1)].min() / 2)
+
+
+def qr_terms(pp: mp.Plant) -> dict:
+    """What ``QrMultirotor`` adds: SI units, rotor speeds in rad/s, body frame unless named world."""
+    P = pp.P
+    k_eta = float(np.mean(pp.k_thrust))
+    rem = P[pl.P_REM:pl.P_REM + 33].reshape(3, 11) if P[pl.P_REM_ON] else None
+    return {
+        "thrust_scale": list(pp.k_thrust / k_eta),  # each rotor's thrust / (k_eta ω²)
+        "linear_drag": list(P[pl.P_LIN:pl.P_LIN + 3]),  # N s/m
+        "quadratic_drag": list(P[pl.P_QUAD:pl.P_QUAD + 3]),  # N s²/m²
+        "rotor_drag": P[pl.P_RDRAG] / pp.unit,  # N s/m per rad/s
+        "blade_flapping": P[pl.P_FLAP],  # N m s/m
+        "wind_force": list(P[pl.P_WIND:pl.P_WIND + 3]),  # N, world
+        "body_force_bias": list(P[pl.P_BBIAS:pl.P_BBIAS + 3]),  # N
+        "torque_bias": list(P[pl.P_TBIAS:pl.P_TBIAS + 3]),  # N m
+        "ground_effect": P[pl.P_GE],  # m²
+        "ground_z": P[pl.P_GZ],  # m
+        "marker_offset": list(P[pl.P_MARKER:pl.P_MARKER + 3]),  # m, tracked point from the CG, body
+        "remainder_hover_speed": P[pl.P_UHOVER] * pp.unit,  # rad/s
+        "torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
+    }
+
+
+def _literal(x) -> str:
+    if x is None:
+        return "None"
+    if isinstance(x, dict):
+        return "{" + ", ".join(f"'{k}': {_literal(v)}" for k, v in x.items()) + "}"
+    if isinstance(x, (list, tuple)):
+        if x and isinstance(x[0], (list, tuple)):
+            return "[" + ", ".join(_literal(v) for v in x) + "]"
+        return f"np.array({_vec(x)}, float)"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    return g(x)
+
+
+MODULE = '''"""{name} for RotorPy 3: written by `qr export {path} --to rotorpy` (qr {version}).
+
+    from {module} import quad_params, QrMultirotor
+    vehicle = QrMultirotor()                    # qr's extended model, exactly (see mapping.md)
+    vehicle = Multirotor(quad_params)           # RotorPy's own physics with the mapped coefficients
+
+Body frame x forward, y left, z up; rotor speeds in rad/s; SI units.  mapping.md beside this file
+states every conversion and approximation.
+"""
+import numpy as np
+from scipy.spatial.transform import Rotation
+from rotorpy.vehicles.multirotor import Multirotor
+
+quad_params = {{
+{params}
+}}
+
+# Terms RotorPy has no key for (QrMultirotor adds them); SI units, rad/s, body frame unless "world".
+QR_TERMS = {{
+{terms}
+}}
+
+MIN_GROUND_HEIGHT = {min_h}  # m, as qr's plant: keeps k T / h^2 finite in a crash
+
+
+def hover_state(position=(0.0, 0.0, 1.0)):
+    """A state at rest, level, every rotor at the hover speed ({hover} rad/s)."""
+    return {{"x": np.array(position, float), "v": np.zeros(3), "q": np.array([0.0, 0.0, 0.0, 1.0]),
+            "w": np.zeros(3), "wind": np.zeros(3), "rotor_speeds": np.full({n}, {hover})}}
+
+
+def tracked_point(state):
+    """World position of the point a motion-capture system tracked (qr's marker_offset from the CG)."""
+    R = Rotation.from_quat(state["q"]).as_matrix()
+    return state["x"] + R @ QR_TERMS["marker_offset"]
+
+
+class QrMultirotor(Multirotor):
+    """RotorPy's Multirotor plus the terms of qr's extended model it has no key for.
+
+    exact_aero=True (default): RotorPy's own aerodynamics are switched off (aero=False) and qr's exact
+    drag and flapping terms are added instead, so the vehicle integrates qr's plant.
+    exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_flap, c_D: approximate where
+    mapping.md says), plus the terms it has no key for."""
+
+    def __init__(self, params=None, initial_state=None, exact_aero=True, **kwargs):
+        self.exact_aero = exact_aero
+        if exact_aero:
+            kwargs["aero"] = False
+        super().__init__(quad_params if params is None else params,
+                         hover_state() if initial_state is None else initial_state, **kwargs)
+        t = QR_TERMS
+        self._scale = np.asarray(t["thrust_scale"], float)
+        self._W = None if t["torque_remainder"] is None else np.asarray(t["torque_remainder"], float)
+
+    def qr_wrench(self, s):
+        """(world force, body force, body moment) qr's model adds to RotorPy's at the packed state s."""
+        t = QR_TERMS
+        R = Rotation.from_quat(s[6:10]).as_matrix()
+        vb = R.T @ (s[3:6] - s[13:16])
+        w, speeds = s[10:13], s[16:]
+        thrust = self.k_eta * speeds**2  # RotorPy's own thrust of each rotor
+        extra = (self._scale - 1.0) * thrust
+        F = np.array([0.0, 0.0, extra.sum()])
+        M = np.cross(self.rotor_geometry, np.outer(extra, [0.0, 0.0, 1.0])).sum(axis=0)
+        if self.exact_aero:
+            F -= t["linear_drag"] * vb + t["quadratic_drag"] * np.abs(vb) * vb
+            F[:2] -= t["rotor_drag"] * speeds.sum() * vb[:2]
+            M += t["blade_flapping"] * np.array([vb[1], -vb[0], 0.0])
+        F += t["body_force_bias"]
+        M += t["torque_bias"]
+        if t["ground_effect"]:
+            h = max(s[2] + R[2] @ t["marker_offset"] - t["ground_z"], MIN_GROUND_HEIGHT)
+            F[2] += t["ground_effect"] * (self._scale * thrust).sum() / h**2
+        if self._W is not None:
+            phi = np.concatenate([vb, w, (speeds / t["remainder_hover_speed"])**2 - 1.0, [1.0]])
+            M += self._W @ phi
+        return np.asarray(t["wind_force"], float), F, M
+
+    def _s_dot_fn(self, t, s, cmd_rotor_speeds):
+        s_dot = super()._s_dot_fn(t, s, cmd_rotor_speeds)
+        F_world, F_body, M_body = self.qr_wrench(s)
+        R = Rotation.from_quat(s[6:10]).as_matrix()
+        s_dot[3:6] += (R @ F_body + F_world) / self.mass
+        s_dot[10:13] += self.inv_inertia @ M_body
+        return s_dot
+'''
+
+
+def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> str:
+    params = quad_params(pp)
+    lines = []
+    for k, v in params.items():
+        if k == "rotor_pos":
+            inner = ",\n".join(f"        '{r}': {_literal(p)}" for r, p in v.items())
+            lines.append(f"    'rotor_pos': {{\n{inner},\n    }},")
+        else:
+            lines.append(f"    '{k}': {_literal(v)},")
+    terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(pp).items())
+    return MODULE.format(name=vehicle.name, path=path, version=version, module=module, params="\n".join(lines),
+                         terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs))
+
+
+def rows(vehicle, pp: mp.Plant) -> list[Row]:
+    """The mapping of every parameter and named effect onto RotorPy."""
+    qp = quad_params(pp)
+    size = mp.sizes(pp)
+    u = vehicle.rotor_speed_unit
+    out = mp.common_rows(vehicle, pp, {
+        "mass": ("mass", g(qp["mass"]) + " kg"),
+        "inertia": ("Ixx, Iyy, Izz (Ixy = Iyz = Ixz = 0)", ", ".join(g(qp[k]) for k in ("Ixx", "Iyy", "Izz"))),
+        "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²"),
+        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²"),
+    })
+    out += [
+        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions), "rotor_pos",
+            ", ".join(f"({g(r[0])}, {g(r[1])}, 0)" for r in pp.rotor_pos), EXACT,
+            "m, relative to the CG (cg_offset subtracted); rotor plane through the CG"),
+        Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "rotor_directions",
+            ", ".join(f"{s:+g}" for s in pp.yaw_signs), EXACT,
+            "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign"),
+        Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "tau_m", g(qp["tau_m"]) + " s", EXACT,
+            "first-order lag in both"),
+        Row("rotor_speed_min / max", f"{g(vehicle.rotor_speed_min)} / {g(vehicle.rotor_speed_max)} {u}",
+            "rotor_speed_min / max", f"{g(qp['rotor_speed_min'])} / {g(qp['rotor_speed_max'])} rad/s", EXACT, "× f"),
+        Row("(none: no translational lift, no vertical rotor drag in qr)", "-", "k_h, k_z", "0, 0", EXACT,
+            "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over"),
+        Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG"),
+        Row("(none: qr has no propeller size)", "-", "rotor_radius", g(qp["rotor_radius"]) + " m", EXACT,
+            "drawing only in RotorPy: half the smallest distance between two rotor axes"),
+        Row("(RotorPy's low-level gains)", "-", "k_w, k_v, kp_att, kd_att",
+            ", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att")), EXACT,
+            "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)"),
+    ]
+    P = pp.P
+    have = mp.present(vehicle)
+
+    def val(name):
+        return mp.effect_value(vehicle, name)
+
+    for name in have:
+        if name in ("mass_error", "inertia_error"):
+            out.append(Row(name, val(name), "mass" if name == "mass_error" else "Ixx, Iyy, Izz", "(added)", EXACT,
+                           "added to the vehicle's value"))
+        elif name == "thrust_gain":
+            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²"))
+        elif name == "yaw_torque_gain":
+            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²"))
+        elif name == "cg_offset":
+            out.append(Row(name, val(name), "rotor_pos", "(shifted)", EXACT,
+                           "rotor_pos_i = (x_i - rx, y_i - ry, 0): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
+        elif name == "motor_imbalance":
+            out.append(Row(name, val(name), "k_eta (mean) + QR_TERMS['thrust_scale']",
+                           _vec(qr_terms(pp)["thrust_scale"]), EXACT,
+                           "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
+                           "alone has their mean k_eta"))
+        elif name == "rotor_drag":
+            out.append(Row(name, val(name), "k_d", g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
+                           "k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
+                           "airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
+                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly"))
+        elif name == "blade_flapping":
+            out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
+                           f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
+                           "[v_iy, -v_ix, 0] grows with the rotor speeds, qr's k [v_y, -v_x, 0] does not: exact at "
+                           "equal rotor speeds summing to 4 ω_hover (CG at the rotors' centre); relative error "
+                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly"))
+        elif name == "quadratic_drag":
+            out.append(Row(name, val(name), "c_Dx, c_Dy, c_Dz", ", ".join(g(qp[k]) for k in ("c_Dx", "c_Dy", "c_Dz")),
+                           APPROXIMATE, "c_Dj = c_j: RotorPy's -c_Dj |v| v_j equals qr's -c_j |v_j| v_j for airspeed "
+                           "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
+                           "applies qr's term exactly"))
+        elif name == "linear_drag":
+            out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[pl.P_LIN:pl.P_LIN + 3]) + " N s/m",
+                           EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
+                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})"))
+        elif name in ("wind_force", "body_force_bias", "torque_bias"):
+            key = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
+            off = {"wind_force": pl.P_WIND, "body_force_bias": pl.P_BBIAS, "torque_bias": pl.P_TBIAS}[name]
+            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + key, EXACT,
+                           f"no RotorPy key: QrMultirotor adds it ({size[name]})"))
+        elif name == "ground_effect":
+            out.append(Row(name, val(name), "QR_TERMS['ground_effect'], ['ground_z']",
+                           f"{g(P[pl.P_GE])} m², {g(P[pl.P_GZ])} m", EXACT,
+                           f"no RotorPy key: QrMultirotor adds k T / h² along body z ({size[name]})"))
+        elif name == "marker_offset":
+            out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[pl.P_MARKER:pl.P_MARKER + 3]) + " m",
+                           EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
+                           f"point x + R r ({size[name]}), and the ground effect's height uses it"))
+        elif name == "actuator_delay":
+            out.append(Row(name, val(name), "-", "-", IMPOSSIBLE,
+                           f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
+                           "first-order motors, delaying cmd_motor_speeds by the same time is equivalent"))
+    if P[pl.P_REM_ON]:
+        out.append(Row("torque_remainder", "W (3 x 11)", "QR_TERMS['torque_remainder']", "(3 x 11)", EXACT,
+                       f"a learned map, no RotorPy key: QrMultirotor adds W φ ({size['torque_remainder']})"))
+    return out
+
+
+def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
+    """Write ``<name>_params.py`` into ``tmp``; return the names written."""
+    from ..atomic import write_text
+
+    module = file_stem(vehicle) + "_params"
+    write_text(tmp / f"{module}.py", module_text(vehicle, pp, path, version, module))
+    return [f"{module}.py"]
+
+
+def file_stem(vehicle) -> str:
+    """A Python module name from the vehicle's name (``crazyflie21-brushless`` → ``crazyflie21_brushless``)."""
+    import re
+
+    stem = re.sub(r"\W", "_", vehicle.name).strip("_") or "vehicle"
+    return stem if not stem[0].isdigit() else f"v_{stem}"
+
+
+INTRO = ["`QrMultirotor` (the module's subclass of RotorPy's `Multirotor`, `exact_aero=True` by default) switches "
+         "RotorPy's own aerodynamics off and adds qr's terms exactly: it integrates qr's plant, and every row "
+         "below holds for it except those marked impossible. `Multirotor(quad_params)` alone has RotorPy's own "
+         "physics with the mapped keys: the rows marked approximate hold under their condition, the terms under "
+         "`QR_TERMS` are missing. f = rad/s per rotor-speed unit."]

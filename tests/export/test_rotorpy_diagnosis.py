@@ -1,0 +1,62 @@
+"""The other direction: flights RotorPy simulates (its own Multirotor, controller and trajectories), written as
+canonical logs, diagnosed by `qr diagnose`.
+
+RotorPy's own Hummingbird (rotorpy/vehicles/hummingbird_params.py: rotor drag k_d, induced-inflow drag k_z,
+translational lift k_h, parasitic drag c_D, motor lag tau_m = 5 ms) with a flapping coefficient RotorPy's
+files leave at 0 (k_flap = -1e-5 N m s/m per rad/s: nose-up with forward speed, as the Crazyflie measured),
+flown by its SE3Control along two of its 3-D circles, 30 s each at 100 Hz.  Through the export's mapping
+read backwards (qr.sim.rotorpy_flights.expected_effects): rotor_drag k = k_d, blade_flapping
+k = -k_flap Σω_hover, linear_drag kz = k_z Σω_hover.  Aerodynamics off, nothing may be named.
+
+What else a diagnosis names there is RotorPy physics qr's catalog has no term for, named through the
+nearest catalog term (docs/export.md, measured by benchmarks/rotorpy.py): translational lift as a body-z
+force, the rotor drag's moments at the hubs as yaw_torque_gain and inertia_error, the parasitic drag
+(0.6 % of the weight at these 2.4 m/s) inside the linear drag's kx, ky.
+"""
+
+import copy
+
+import pytest
+
+pytest.importorskip("rotorpy")
+
+from qr.flight import write_flight  # noqa: E402
+from qr.sim.rotorpy_flights import Circle, RotorpyFlight, expected_effects, fly, vehicle_dict  # noqa: E402
+from qr.stages.diagnose import run_diagnosis  # noqa: E402
+from qr.vehicle import save_vehicle, vehicle_from_dict  # noqa: E402
+
+CIRCLES = [Circle(), Circle(radius=(1.5, 2.5, 0.4), freq=(0.25, 0.15, 0.3))]
+K_FLAP = -1e-5
+
+
+def hummingbird(k_flap=K_FLAP):
+    from rotorpy.vehicles.hummingbird_params import quad_params
+
+    qp = copy.deepcopy(quad_params)
+    qp["k_flap"] = k_flap
+    return qp
+
+
+def diagnose(qp, aero, tmp_path):
+    flights = []
+    for seed, circle in enumerate(CIRCLES):
+        flight, _ = fly(qp, RotorpyFlight(duration=30.0, aero=aero, seed=seed, trajectory=circle))
+        flights.append(tmp_path / f"rotorpy{seed}.csv")
+        write_flight(flight, flights[-1])
+    save_vehicle(vehicle_from_dict(vehicle_dict(qp, "hummingbird-rotorpy")), tmp_path / "vehicle.yaml")
+    doc = run_diagnosis(flights, tmp_path / "vehicle.yaml", tmp_path / "diag", [], log=lambda m: None, figures=False)
+    return {e["name"]: e["parameters"] for e in doc["effects"]}
+
+
+def test_rotorpy_aerodynamics_are_named_through_the_mapping(tmp_path):
+    qp = hummingbird()
+    expected = expected_effects(qp)
+    named = diagnose(qp, True, tmp_path)
+    for name, key in (("rotor_drag", "k"), ("blade_flapping", "k"), ("linear_drag", "kz")):
+        assert name in named, (name, named)
+        assert named[name][key] == pytest.approx(expected[name][key], rel=0.2), (name, named[name], expected[name])
+    assert "actuator_delay" not in named  # RotorPy's motor lag acts before the logged rotor speeds
+
+
+def test_nothing_is_named_on_a_rotorpy_flight_without_aerodynamics(tmp_path):
+    assert diagnose(hummingbird(), False, tmp_path) == {}
