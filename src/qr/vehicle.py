@@ -30,7 +30,7 @@ SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
-                         "description", "source", "torque_remainder", "rotor_input", "command_map"} \
+                         "description", "source", "torque_remainder", "residual", "rotor_input", "command_map"} \
     | set(OPTIONAL_DEFAULTS)
 ROTOR_INPUTS = ("speed", "command")
 
@@ -43,6 +43,7 @@ class Vehicle:
     rotors: RotorMap
     rotor_speed_unit: str
     raw: dict = field(repr=False)  # the validated mapping (for saving / extending)
+    residual: object = field(default=None, repr=False)  # a learned wrench (qr.residual.Residual), read at load
 
     @property
     def J(self) -> np.ndarray:
@@ -208,6 +209,10 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None) -> Vehicle:
         from .torque_remainder import validate
 
         raw["torque_remainder"] = validate(raw["torque_remainder"], path)
+    if raw.get("residual") is not None:
+        from .residual import load
+
+        vehicle.residual = load(raw["residual"], path)
     return vehicle
 
 
@@ -281,6 +286,10 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
         raise QrInputError(path, "vehicle file nests too deep", "write a flat 'key: value' file") from None
     if raw is None:
         raise QrInputError(path, "vehicle file is empty", "write the keys of docs/spec/flight-log.md")
+    if isinstance(raw, dict) and "residual" in raw:  # its model file: relative to the file that names it
+        from .residual import absolute
+
+        raw["residual"] = absolute(raw["residual"], path.parent)
     if isinstance(raw, dict) and "extends" in raw:
         base_name = raw["extends"]
         if not isinstance(base_name, str) or not base_name.strip():
@@ -319,6 +328,10 @@ def load_vehicle(path: str | Path) -> Vehicle:
 def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None = None) -> None:
     raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
     raw.pop("extends", None)
+    if "residual" in raw:  # its model file, as seen from where this file goes
+        from .residual import relative
+
+        raw["residual"] = relative(raw["residual"], Path(path).parent)
     text = yaml.safe_dump(plain(raw), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text
