@@ -141,7 +141,7 @@ class Plant:
         self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN]]).T  # (4, 4): u² → T, Γx, Γy, Γz
         self.lin, self.quad, self.bias = P[P_LIN:P_LIN + 3], P[P_QUAD:P_QUAD + 3], P[P_BBIAS:P_BBIAS + 3]
         self.rdrag = P[P_RDRAG] * _XY
-        self.ground = float(P[P_GE]) != 0.0 or P.requires_grad
+        self.ground = float(P[P_GE].detach()) != 0.0 or P.requires_grad
         self.ge, self.gz, self.marker = P[P_GE], P[P_GZ], P[P_MARKER:P_MARKER + 3]
         zero = torch.zeros((), dtype=DTYPE)
         self.cg = torch.stack([-P[P_CG + 1], P[P_CG], zero])  # τ = r_cg × (0, 0, T)
@@ -149,7 +149,7 @@ class Plant:
         self.flap = torch.stack([torch.stack([zero, -k, zero]), torch.stack([k, zero, zero]),
                                  torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = k (v_y, −v_x, 0)
         self.tbias, self.wind, self.mass, self.J = P[P_TBIAS:P_TBIAS + 3], P[P_WIND:P_WIND + 3], P[P_MASS], P[P_J:P_J + 3]
-        self.rem = P[P_REM:P_REM + 33].reshape(3, 11).T if float(P[P_REM_ON]) != 0.0 else None
+        self.rem = P[P_REM:P_REM + 33].reshape(3, 11).T if float(P[P_REM_ON].detach()) != 0.0 else None
         self.uh = P[P_UHOVER]
         self.residual, self.frozen = residual, frozen
 
@@ -266,6 +266,3 @@ def delayed_inputs(t: np.ndarray, U: np.ndarray, d: torch.Tensor) -> torch.Tenso
     f = torch.clamp((s - t0) / (t1 - t0), 0.0, 1.0)[:, None]
     return (1 - f) * Ut[k] + f * Ut[k + 1]
 
-
-def delay_of(P: torch.Tensor) -> torch.Tensor:
-    return P[P_DELAY]

@@ -5,8 +5,10 @@ The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project add
 log's world frame), ``rotor_speed_min`` / ``rotor_speed_max`` and
 ``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
 ``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
-and ``extends`` (a path, relative to this file, of a vehicle whose keys this one
-overrides).
+``torque_remainder`` (:mod:`qr.torque_remainder`), ``residual`` (a learned wrench,
+:mod:`qr.residual`: its model file is relative to the YAML that names it, and rewritten
+relative to wherever the vehicle is saved) and ``extends`` (a path, relative to this
+file, of a vehicle whose keys this one overrides).
 """
 
 from __future__ import annotations

@@ -132,8 +132,8 @@ def test_training_reads_only_its_flights_and_repeats_bit_for_bit(flights, tmp_pa
 
 def test_fine_tuning_starts_from_the_vehicles_residual(flights, trained, tmp_path):
     """A vehicle that already carries a residual is fine-tuned: its architecture is kept (width ignored)
-    and training starts from its weights, so the first loss is the carried model's, well below the
-    physical vehicle's on the same windows."""
+    and training starts from its weights, so the first loss is the carried model's, below the physical
+    vehicle's on the same windows (a new network starts at zero output: the physical vehicle's loss)."""
     from qr.stages.learn_residual import run_residual
 
     _, out = trained
@@ -145,7 +145,7 @@ def test_fine_tuning_starts_from_the_vehicles_residual(flights, trained, tmp_pat
     assert ft["network"]["start"].startswith("fine-tuned") and ft["network"]["layers"] == [13, 16, 6]
     assert fresh["network"]["layers"] == [13, 64, 64, 6] and ft["flights"]["validation_by"] == "time"
     assert ft["windows"] == fresh["windows"]
-    assert ft["initial_loss"]["val_loss"] < 0.8 * fresh["initial_loss"]["val_loss"]
+    assert ft["initial_loss"]["val_loss"] < 0.95 * fresh["initial_loss"]["val_loss"]
 
 
 def test_the_spec_command_line(flights, tmp_path):
@@ -176,10 +176,11 @@ def test_bad_settings_are_one_line_and_write_nothing(flights, tmp_path, capsys, 
 def test_a_malformed_residual_in_a_vehicle_file_is_one_line(trained, tmp_path, capsys):
     _, out = trained
     raw = yaml.safe_load((out / "hybrid_vehicle.yaml").read_text())
-    for bad, words in ((dict(raw["residual"], model="missing.npz"), "does not exist"),
-                       (dict(raw["residual"], inputs=["v_b", "a_b"]), "inputs"),
-                       (dict(raw["residual"], layers=[13, 8, 6]), "do not match")):
-        path = out.parent / "bad.yaml"  # beside the model file
+    block = dict(raw["residual"], model=str(out / "residual.npz"))  # (an absolute path is fine too)
+    for bad, words in ((dict(block, model="missing.npz"), "does not exist"),
+                       (dict(block, inputs=["v_b", "a_b"]), "inputs"),
+                       (dict(block, layers=[13, 8, 6]), "do not match")):
+        path = tmp_path / "bad.yaml"
         path.write_text(yaml.safe_dump({**raw, "residual": bad}))
         status, _, err = run_cli(["synth", "--vehicle", path, "--duration", "2", "--out", tmp_path / "s"], capsys)
         assert status == 2 and words in err and len(err.strip().splitlines()) == 1, err
@@ -212,6 +213,8 @@ def test_a_sweep_is_one_parent_run_with_a_logged_model_per_job(flights, tmp_path
     assert len(parents) == 1 and len(children) == 2 and parents[0].info.status == "FINISHED"
     child = next(c for c in children if c.info.run_name == "job1")
     assert child.data.params["learn.width"] == "5" and child.info.status == "FINISHED"
+    # the same windows as a single run: the filter named by evaluate.filter (auto), not the tree's default
+    assert json.loads((out / "job1" / "training.json").read_text())["config"]["filter"]["tune"]["enabled"]
     steps = client.get_metric_history(child.info.run_id, "val.hybrid.w_mae")
     assert sorted(m.step for m in steps) == [1, 10]  # MAE per h, h as the metric's step
     model = mlflow.pyfunc.load_model(f"runs:/{child.info.run_id}/model")

@@ -129,7 +129,7 @@ def test_whole_windows_equal_the_compiled_rollout(case, hummingbird):
     starts = [s for s in (0, 7, 33, 60, 100) if w.ok[s] and s + H < len(w.t)]
     assert len(starts) >= 4
     j = np.array(starts)[:, None] + np.arange(1, H + 1)
-    t = lambda a: torch.as_tensor(a)  # noqa: E731
+    t = lambda a: torch.as_tensor(np.array(a))  # noqa: E731
     pred = rt.rollout(t(w.X0[starts]), Ud[j - 1], t(w.t[j] - w.t[j - 1]), t(P[:N_P]), net)
     E = rt.window_errors(pred, t(w.tp[j]), t(w.tq[j]), t(w.tv[j]), t(w.tw[j])).detach().numpy()
     for b, s in enumerate(starts):
@@ -154,7 +154,7 @@ def test_gradients_reach_the_physical_parameters(hummingbird):
     c = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)  # C_T / C_T(file)
     P = rt.place(P0, {P_J: J, P_SCALE: c * torch.as_tensor(P0[P_SCALE:P_SCALE + 4])})
     Ud = rt.delayed_inputs(w.t, w.U, P[rollout.P_DELAY])
-    t = lambda a: torch.as_tensor(a)[None]  # noqa: E731
+    t = lambda a: torch.as_tensor(np.array(a))[None]  # noqa: E731
     E = rt.window_errors(rt.rollout(t(w.X0[s]), Ud[j - 1][None], t(w.t[j] - w.t[j - 1]), P),
                          t(w.tp[j]), t(w.tq[j]), t(w.tv[j]), t(w.tw[j]))
     torch.nan_to_num(E[0, :, 3]).sum().backward()  # the summed rate error of the window
