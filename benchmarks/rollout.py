@@ -62,13 +62,13 @@ def main():
                       "carried_vehicle.yaml": "carried"})
     models = {names.get(k, k): v for k, v in ev["models"].items()}
     print(f"\nheld-out flights: {len(test)}, dt {ev['dt'] * 1e3:.1f} ms, H = {ev['horizon']}")
-    print(f"{'model':12s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+    print(f"{'model':16s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
     for name, block in models.items():
-        print(f"{name:12s}" + "".join(f"{rollout.at(block, h, q):9.4f}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+        print(f"{name:16s}" + "".join(f"{rollout.at(block, h, q):9.4f}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
     base = models["rate_frozen"]
     print("\nratio to rate_frozen at h = 50 (< 1: better than the benchmark's physics baseline)")
     for name, block in models.items():
-        print(f"{name:12s}" + "".join(f"  {q} {rollout.at(block, 50, q) / rollout.at(base, 50, q):6.2f}"
+        print(f"{name:16s}" + "".join(f"  {q} {rollout.at(block, 50, q) / rollout.at(base, 50, q):6.2f}"
                                       for q in rollout.QUANTITIES))
     print(f"\n(files in {tmp})")
 
@@ -96,7 +96,7 @@ def _with_residual(a, flights, nis, tmp):
     if a.residual:
         base = tmp / "carried_vehicle.yaml" if a.residual_from else ext  # the carried network: fine-tuned
         doc = train_held_out(flights, base, tmp / "residual", ["learn.keep_remainder=false", *a.learn], reports=nis,
-                             track=False)
+                             track=False, log=lambda m: print(m) if m.startswith("epoch") else None)
         print(f"rollout-trained residual: {doc['wall_s']['training']:.0f} s of training "
               f"({doc['epochs']['run']} epochs, best {doc['epochs']['best']}) after {doc['wall_s']['estimates']:.0f} s "
               f"of estimates; {doc['windows']['training']} training windows")

@@ -44,7 +44,7 @@ def trained(flights):
 
     doc = run_residual([flights / "a" / "flight.csv", flights / "b" / "flight.csv"], flights / "a" / "vehicle.yaml",
                        flights / "res", ["learn.horizon=20", "learn.width=16", "learn.depth=1", "learn.epochs=6",
-                                         "learn.batch=128", "learn.stride=3"], track=False, log=lambda m: None)
+                                         "learn.stride=3"], track=False, log=lambda m: None)
     return doc, flights / "res"
 
 

@@ -4,7 +4,7 @@ On random states and inputs, for the nominal vehicle and with every catalog effe
 torque remainder and a learned wrench), the torch derivative, RK4 step and whole windows' errors
 equal the compiled ones to 1e-9; gradients reach the physical parameters; the prediction at step h
 never depends on a later input; a learned wrench flies wherever the vehicle does (a constant one is
-the catalog's body_force_bias + torque_bias in qr synth, the rollout and the replay).
+the catalog's body_force_bias + torque_bias in qr synth, the rollout, the replay and the study).
 """
 
 import numpy as np
@@ -247,3 +247,18 @@ def test_a_constant_residual_flies_as_the_catalogs_bias_everywhere(hummingbird, 
     np.testing.assert_allclose(got["r"][0], got["e"][0], rtol=1e-9, atol=1e-12)
     ra, rb = replay(states, meas, hybrid, [], 0.3), replay(states, meas, hummingbird, effects, 0.3)
     np.testing.assert_allclose(ra[["ex", "ey", "ez"]].to_numpy(), rb[["ex", "ey", "ez"]].to_numpy(), atol=1e-9)
+
+
+def test_the_simulation_study_flies_a_residual(crazyflie):
+    """The study's closed loop (qr.sim.study.fly) with a constant residual is the loop with the catalog's
+    body_force_bias + torque_bias, sample for sample."""
+    from qr.sim.study import Plant, fly, random_reference
+
+    hybrid = crazyflie.with_changes()
+    hybrid.residual = _constant(crazyflie, [0.003, -0.002, 0.005, 1e-5, -2e-5, 5e-6])
+    effects = [parse_effect_spec("body_force_bias:bx=0.003,by=-0.002,bz=0.005"),
+               parse_effect_spec("torque_bias:tx=1e-5,ty=-2e-5,tz=5e-6")]
+    ref = random_reference(np.random.default_rng(0), 4.0)
+    a, b, c = fly(ref, Plant(hybrid)).log, fly(ref, Plant(crazyflie, effects)).log, fly(ref, Plant(crazyflie)).log
+    np.testing.assert_allclose(a.to_numpy(float), b.to_numpy(float), rtol=1e-9, atol=1e-12)
+    assert not np.allclose(a.to_numpy(float), c.to_numpy(float))
