@@ -313,7 +313,7 @@ def main(flights, vehicle, out, rest, force: bool = False) -> None:
         return
     from ..outputs import check_out_dir
 
-    check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=(SWEEP_CSV,))
+    check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=(SWEEP_CSV, "multirun.yaml"))
     if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
         # the filter the windows start from is evaluate.filter's, as in a single run (compose_stage)
         from ..rollout import EvaluateNode
@@ -350,8 +350,9 @@ def _job(cfg) -> float:
     return float(min(e["val_loss"] for e in doc["loss_per_epoch"]))
 
 
-def collect(out) -> "pd.DataFrame":  # noqa: F821
-    """One row per job of a sweep: its overrides, epochs, best validation loss and ratios at H."""
+def collect(out, since: float = 0.0) -> "pd.DataFrame":  # noqa: F821
+    """One row per job of a sweep (its training.json written after ``since``, a time stamp): settings,
+    epochs, best validation loss and ratios at H."""
     import json
 
     import pandas as pd
@@ -360,6 +361,8 @@ def collect(out) -> "pd.DataFrame":  # noqa: F821
 
     rows = []
     for p in sorted(Path(out).glob("job*/training.json"), key=lambda p: int(p.parent.name[3:])):
+        if p.stat().st_mtime < since:  # a job of an earlier sweep into the same folder
+            continue
         d = json.loads(p.read_text())
         row = {"job": p.parent.name, **{k: v for k, v in d["config"]["learn"].items()
                                        if not isinstance(v, (list, dict))},
@@ -393,6 +396,7 @@ class ResidualSweep(Callback):
 
     def __init__(self):
         self._cm = self._run = None
+        self._started = 0.0
 
     def __getstate__(self):
         return {}
@@ -407,6 +411,7 @@ class ResidualSweep(Callback):
 
         from .. import tracking
 
+        self._started = time.time()
         out = Path(config.learn.out)
         out.mkdir(parents=True, exist_ok=True)
         params = {"sweep": f"residual {out.name}", "overrides": " ".join(config.hydra.overrides.task)}
@@ -419,12 +424,15 @@ class ResidualSweep(Callback):
     def on_multirun_end(self, config, **kwargs) -> None:
         if self._cm is None:
             return
-        from ..atomic import atomic_path
+        from ..atomic import _write_marker, atomic_path
 
         out = Path(config.learn.out)
-        runs = collect(out)
+        runs = collect(out, self._started)
         with atomic_path(out / SWEEP_CSV) as tmp:
             runs.to_csv(tmp, index=False)
+        # a qr output (Hydra's multirun.yaml too): a later sweep may replace them
+        _write_marker(out, [SWEEP_CSV] + (["multirun.yaml"] if (out / "multirun.yaml").exists() else []),
+                      "qr learn residual -m")
         if len(runs):
             best = runs.loc[runs["val_loss"].idxmin()]
             self._run.tags({"qr.best_job": best["job"]})
