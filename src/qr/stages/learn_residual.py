@@ -219,8 +219,10 @@ def report(doc: dict) -> str:
              + f", step weights ∝ h^{doc['loss']['horizon_power']:g}.", "",
              f"Training: {doc['epochs']['run']} epoch(s) ({doc['epochs']['stopped']}), the weights of epoch "
              f"{doc['epochs']['best']} kept, {doc['wall_s']['training']:.1f} s; validation loss "
-             f"{doc['initial_loss']['val_loss']:.4f} without the residual, "
-             f"{min([doc['initial_loss']['val_loss']] + [e['val_loss'] for e in doc['loss_per_epoch']]):.4f} with it.",
+             f"{doc['initial_loss']['val_loss']:.4f} at the start ("
+             + ("the vehicle's own residual, fine-tuned" if doc["network"]["start"].startswith("fine") else
+                "the vehicle without a residual") + "), "
+             f"{min([doc['initial_loss']['val_loss']] + [e['val_loss'] for e in doc['loss_per_epoch']]):.4f} with the kept weights.",
              "", "![training curve](figures/training_curve.png)", "",
              "## Validation windows (the compiled rollout of `qr evaluate`)", "",
              "MAE per step h: p (m), v (m/s), R (rad), w (rad/s); the ratio to `rate_frozen` at h = H.", ""]
