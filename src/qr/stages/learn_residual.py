@@ -209,6 +209,7 @@ def report(doc: dict) -> str:
     fl = doc["flights"]
     where = (f"{len(fl['validation'])} whole validation flight(s) ({', '.join(Path(f).name for f in fl['validation'])})"
              if fl["validation_by"] == "flight" else f"the flight's time from {fl['validation_from_s']:.2f} s on")
+    best = min([doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in doc["loss_per_epoch"]])
     lines = [f"# Residual trained through the rollout ({len(fl['training'])} training flight(s))", "",
              f"A {doc['network']['activation']} MLP {doc['network']['layers']} from {', '.join(doc['network']['inputs'])} "
              f"to a body force and torque, added to `{doc['vehicle']}` at every evaluation of the dynamics and "
@@ -222,7 +223,7 @@ def report(doc: dict) -> str:
              f"{doc['initial_loss']['val_loss']:.4f} at the start ("
              + ("the vehicle's own residual, fine-tuned" if doc["network"]["start"].startswith("fine") else
                 "the vehicle without a residual") + "), "
-             f"{min([doc['initial_loss']['val_loss']] + [e['val_loss'] for e in doc['loss_per_epoch']]):.4f} with the kept weights.",
+             f"{best:.4f} with the kept weights.",
              "", "![training curve](figures/training_curve.png)", "",
              "## Validation windows (the compiled rollout of `qr evaluate`)", "",
              "MAE per step h: p (m), v (m/s), R (rad), w (rad/s); the ratio to `rate_frozen` at h = H.", ""]
