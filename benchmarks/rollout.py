@@ -9,6 +9,12 @@ so the same numbers as results/tables/rollout_held_out.md); `qr evaluate` then s
 the held-out flights beside the references `hold` and `rate_frozen` (the public benchmark's
 physics baseline).  Prints MAE at h = 1, 10, 50 per model and each model's ratio to `rate_frozen`
 at h = 50.  Needs the workflow's ingest (`snakemake --cores 2 ingest_all` or a full run).
+
+`--residual` also trains a residual through the rollout (`qr learn residual`, rule `learn_residual`'s
+call) on the same training flights on top of the physical extended vehicle, rolls it out beside the
+others ("rollout-trained") and prints its training wall time; `--residual-from DIR` flies a residual
+trained elsewhere (DIR/hybrid_vehicle.yaml's network on this set's extended vehicle: the carried model),
+and with `--residual` too, fine-tunes it on this set's training flights.
 """
 
 import argparse
@@ -35,6 +41,9 @@ def main():
     ap.add_argument("--vehicle", default="conf/vehicle/crazyflie21_brushless.yaml")
     ap.add_argument("--results", default="results")
     ap.add_argument("--extra", action="append", default=[], help="more diagnose overrides")
+    ap.add_argument("--residual", action="store_true", help="train a residual through the rollout too")
+    ap.add_argument("--residual-from", help="a qr learn residual output whose network to carry over")
+    ap.add_argument("--learn", action="append", default=[], help="qr learn residual overrides")
     a = ap.parse_args()
     flights = sorted(glob.glob(f"{a.results}/ingest/{a.set}/*.parquet"))
     if not flights:
@@ -47,17 +56,52 @@ def main():
     doc = json.loads((tmp / "diag" / "diagnosis.json").read_text())
     print("named:", ", ".join(e["name"] for e in doc["effects"]) or "nothing")
     names = {Path(a.vehicle).name: "nominal", "extended_physical.yaml": "extended", "extended_vehicle.yaml": "hybrid"}
+    if a.residual or a.residual_from:
+        ev = _with_residual(a, flights, nis, tmp)
+        names.update({"hybrid_vehicle.yaml": "fine-tuned" if a.residual_from else "rollout-trained",
+                      "carried_vehicle.yaml": "carried"})
     models = {names.get(k, k): v for k, v in ev["models"].items()}
     print(f"\nheld-out flights: {len(test)}, dt {ev['dt'] * 1e3:.1f} ms, H = {ev['horizon']}")
-    print(f"{'model':12s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+    print(f"{'model':16s}" + "".join(f"{q + '@' + str(h):>9s}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
     for name, block in models.items():
-        print(f"{name:12s}" + "".join(f"{rollout.at(block, h, q):9.4f}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
+        print(f"{name:16s}" + "".join(f"{rollout.at(block, h, q):9.4f}" for q in rollout.QUANTITIES for h in (1, 10, 50)))
     base = models["rate_frozen"]
     print("\nratio to rate_frozen at h = 50 (< 1: better than the benchmark's physics baseline)")
     for name, block in models.items():
-        print(f"{name:12s}" + "".join(f"  {q} {rollout.at(block, 50, q) / rollout.at(base, 50, q):6.2f}"
+        print(f"{name:16s}" + "".join(f"  {q} {rollout.at(block, 50, q) / rollout.at(base, 50, q):6.2f}"
                                       for q in rollout.QUANTITIES))
     print(f"\n(files in {tmp})")
+
+
+def _with_residual(a, flights, nis, tmp):
+    """Train (or carry) the rollout-trained residual and evaluate every model on the held-out flights again."""
+    from qr.stages.evaluate import run_evaluation
+    from qr.stages.learn_residual import train_held_out
+    from qr.vehicle import load_vehicle, save_vehicle
+
+    _, test = held_out_by_flight(flights)
+    reports = {f: json.loads(Path(p).read_text()) for f, p in zip(flights, nis)}
+    ext = tmp / "diag" / "extended_vehicle.yaml"
+    models = [a.vehicle, str(ext)]
+    if load_vehicle(ext).raw.get("torque_remainder"):
+        physical = load_vehicle(ext).to_dict()
+        physical.pop("torque_remainder")
+        save_vehicle(physical, tmp / "extended_physical.yaml")
+        models.insert(1, str(tmp / "extended_physical.yaml"))
+    if a.residual_from:
+        raw = load_vehicle(tmp / "extended_physical.yaml" if len(models) == 3 else ext).to_dict()
+        raw["residual"] = load_vehicle(Path(a.residual_from) / "hybrid_vehicle.yaml").raw["residual"]
+        save_vehicle(raw, tmp / "carried_vehicle.yaml")
+        models.append(str(tmp / "carried_vehicle.yaml"))
+    if a.residual:
+        base = tmp / "carried_vehicle.yaml" if a.residual_from else ext  # the carried network: fine-tuned
+        doc = train_held_out(flights, base, tmp / "residual", ["learn.keep_remainder=false", *a.learn], reports=nis,
+                             track=False, log=lambda m: print(m) if m.startswith("epoch") else None)
+        print(f"rollout-trained residual: {doc['wall_s']['training']:.0f} s of training "
+              f"({doc['epochs']['run']} epochs, best {doc['epochs']['best']}) after {doc['wall_s']['estimates']:.0f} s "
+              f"of estimates; {doc['windows']['training']} training windows")
+        models.append(str(tmp / "residual" / "hybrid_vehicle.yaml"))
+    return run_evaluation(test, models, tmp / "eval_residual", log=lambda m: None, reports=[reports[f] for f in test])
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ commands:
   export     a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo, with mapping.md
   filter     Kalman filters / smoother (Hydra overrides)
   learn      train and test residual models, -m for a sweep (Hydra overrides)
+  learn residual  a residual wrench trained through the rollout (docs/spec/hybrid.md)
   simulate   closed-loop study and stability analysis (Hydra overrides)
 
 examples:
@@ -39,6 +40,9 @@ stages with Hydra configs (conf/; KEY=VALUE overrides, --help each, -m for a swe
       qr filter filter=auto filter.flight=flight.csv filter.vehicle=vehicle.yaml filter.out=states.parquet
   qr learn      train and test one residual model (ANN, linear, GPR); -m: a sweep, one MLflow parent run
       qr learn -m sweep=table_4_2 hydra/launcher=joblib2      (hydra/launcher=slurm: on SLURM)
+  qr learn residual  a body wrench trained through the rollout on top of a vehicle (conf/learn/residual.yaml)
+      qr learn residual a.csv b.csv c.csv --vehicle diag/extended_vehicle.yaml --out res learn.width=16
+      qr learn residual a.csv b.csv c.csv --vehicle v.yaml --out sweep -m learn.width=16,32
   qr simulate   closed-loop tracking study and stability analysis (thesis Chapter 5)
       qr simulate simulate.task=stability
   (python -m qr.<stage> ARGS = qr <stage> ARGS for ingest, filter, learn, diagnose, simulate, evaluate, export;
@@ -143,6 +147,32 @@ def _parser() -> argparse.ArgumentParser:
 HYDRA_STAGES = {"filter": ("qr.stages.filter", "Kalman filters / smoother on one flight (Hydra overrides)"),
                 "learn": ("qr.stages.learn", "train and test residual models; -m: a sweep (Hydra overrides)"),
                 "simulate": ("qr.stages.simulate", "closed-loop study and stability analysis (Hydra overrides)")}
+
+
+def _residual_parser() -> argparse.ArgumentParser:
+    s = argparse.ArgumentParser(prog="qr learn residual", formatter_class=argparse.RawDescriptionHelpFormatter,
+                                description="A body force and torque trained through the multi-step rollout "
+                                            "(docs/spec/hybrid.md), on top of a vehicle file.",
+                                epilog="examples:\n  qr learn residual a.csv b.csv c.csv --vehicle diag/extended_vehicle.yaml "
+                                       "--out res\n  qr learn residual a.csv b.csv c.csv --vehicle v.yaml --out sweep -m "
+                                       "learn.width=16,32 learn.horizon=25,50\nwrites OUTDIR/hybrid_vehicle.yaml, "
+                                       "residual.npz, training.json, report.md, figures/ (a sweep: OUTDIR/job<N>/, "
+                                       "sweep.csv); settings: conf/learn/residual.yaml (src/qr/residual_fit.py)")
+    s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
+                   help="the training flights (a part is kept for validation), and optional Hydra overrides "
+                        "(learn.*, evaluate.*, filter=...), before or after the options")
+    s.add_argument("--vehicle", required=True, help="vehicle YAML (nominal or extended, as qr diagnose writes it)")
+    s.add_argument("--out", required=True, help=OUT_DIR_HELP)
+    s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    s.add_argument("-m", "--multirun", action="store_true", help="a sweep over comma-separated values (Hydra)")
+    return s
+
+
+def _cmd_learn_residual(a) -> None:
+    from .stages.learn_residual import main
+
+    flights, overrides = _flights_and_overrides(a, "learn residual")
+    main(flights, a.vehicle, a.out, overrides + (["-m"] if a.multirun else []), force=a.force)
 
 
 def _cmd_hydra_stage(a) -> None:
@@ -304,6 +334,9 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
     """The documented ``qr diagnose FLIGHT... --vehicle V --out D [KEY=VALUE ...]``: overrides may follow
     the options (argparse's intermixed parsing, which only a parser without subcommands offers)."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:2] == ["learn", "residual"]:
+        args = _residual_parser().parse_intermixed_args(argv[2:], argparse.Namespace(command="learn residual"))
+        return args
     if argv and argv[0] in HYDRA_STAGES:
         return argparse.Namespace(command=argv[0], rest=argv[1:])
     args, rest = parser.parse_known_args(argv)
@@ -327,7 +360,8 @@ def _main(argv):
     with sigterm_raises():
         try:
             {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
-             "evaluate": _cmd_evaluate, "export": _cmd_export, **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
+             "evaluate": _cmd_evaluate, "export": _cmd_export, "learn residual": _cmd_learn_residual,
+             **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
             return EXIT_BAD_INPUT

@@ -49,8 +49,9 @@ def schemas() -> dict:
 def kind_schemas() -> dict:
     """Groups whose options differ per kind: group -> {kind: dataclass} (ConfigStore name ``schema_<kind>``)."""
     from .datasets import SPLITS
+    from .residual_fit import ResidualNode
 
-    return {"split": SPLITS}
+    return {"split": SPLITS, "learn": {"residual": ResidualNode}}
 
 
 @functools.lru_cache(maxsize=1)

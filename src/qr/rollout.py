@@ -133,6 +133,38 @@ def starts_allowed(run: np.ndarray, H: int, max_input_gap: int, keep: np.ndarray
     return ok if keep is None else ok & keep
 
 
+@dataclass(frozen=True)
+class Windows:
+    """One gap-free piece as the rollout reads it: start states, inputs and truth on the same stamps."""
+
+    t: np.ndarray  # (n,) s
+    X0: np.ndarray  # (n, 13) start states of the tracked point: p, v (world), q, ω (body)
+    U: np.ndarray  # (n, 4) measured rotor speeds, a dropout held at the last present value
+    ok: np.ndarray  # (n,) bool: the starts scored (inputs without a long gap, a finite start state, ``keep``)
+    tp: np.ndarray  # (n, 3) truth: measured position (NaN where missing)
+    tq: np.ndarray  # (n, 4) measured attitude
+    tv: np.ndarray  # (n, 3) estimated velocity
+    tw: np.ndarray  # (n, 3) estimated body rate
+
+    def inputs(self, P: np.ndarray) -> np.ndarray:
+        """The rotor speeds acting at each sample for the plant ``P`` (its actuator delay applied)."""
+        return np.ascontiguousarray(_delayed(self.t, self.U, float(P[P_DELAY])))
+
+
+def windows(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_gap: int,
+            keep: np.ndarray | None = None) -> Windows:
+    """The piece's :class:`Windows` (``states``: the filtered estimate; ``measured``: the log on its stamps)."""
+    X0 = states[POSITION + VELOCITY + QUATERNION + RATE].to_numpy(float)
+    tp = measured[POSITION].to_numpy(float)
+    tq = measured[QUATERNION].to_numpy(float)
+    tq = np.where(np.isfinite(tq).all(axis=1, keepdims=True), tq, np.nan)
+    tp = np.where(np.isfinite(tp).all(axis=1, keepdims=True), tp, np.nan)
+    U, run = _held(measured[ROTORS].to_numpy(float))
+    ok = starts_allowed(run, horizon, max_input_gap, keep) & np.isfinite(X0).all(axis=1)
+    return Windows(states["t"].to_numpy(float), X0, U, ok, tp, tq, states[VELOCITY].to_numpy(float),
+                   states[RATE].to_numpy(float))
+
+
 def score(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_gap: int,
           models: dict, keep: np.ndarray | None = None) -> dict:
     """Sums and counts per model (``{name: (sums (H, 4), counts (H, 4))}``) on one gap-free piece.
@@ -144,30 +176,25 @@ def score(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_
     the same time stamps (position and attitude truth, rotor speeds).  ``models``: name → ``"hold"``,
     ``("rate_frozen", vehicle)`` or ``(vehicle, effects)``.  ``keep``: the starts to score (all).
     """
-    t = states["t"].to_numpy(float)
-    X0 = states[POSITION + VELOCITY + QUATERNION + RATE].to_numpy(float)
-    tp = measured[POSITION].to_numpy(float)
-    tq = measured[QUATERNION].to_numpy(float)
-    tq = np.where(np.isfinite(tq).all(axis=1, keepdims=True), tq, np.nan)
-    tp = np.where(np.isfinite(tp).all(axis=1, keepdims=True), tp, np.nan)
-    tv = states[VELOCITY].to_numpy(float)
-    tw = states[RATE].to_numpy(float)
-    U, run = _held(measured[ROTORS].to_numpy(float))
-    ok = starts_allowed(run, horizon, max_input_gap, keep) & np.isfinite(X0).all(axis=1)
+    w = windows(states, measured, horizon, max_input_gap, keep)
     out = {}
     for name, spec in models.items():
-        sums, counts = np.zeros((horizon, 4)), np.zeros((horizon, 4), dtype=np.int64)
         if spec == "hold":
-            mode, P, Ud = HOLD, np.zeros(N_P), U  # nothing is integrated; no marker offset
-        elif spec[0] == "rate_frozen":
-            mode, P, Ud = RATE_FROZEN, true_params(spec[1]), U
+            P = np.zeros(N_P)  # nothing is integrated; no marker offset
+            out[name] = score_plant(w, horizon, P, HOLD)
+        elif spec[0] == "rate_frozen":  # the physics baseline: never a learned wrench
+            out[name] = score_plant(w, horizon, true_params(spec[1], residual=False), RATE_FROZEN)
         else:
-            vehicle, effects = spec
-            mode, P = MODEL, true_params(vehicle, effects)
-            Ud = _delayed(t, U, float(P[P_DELAY]))
-        _rollout(t, X0, np.ascontiguousarray(Ud), ok, tp, tq, tv, tw, horizon, P, mode, sums, counts)
-        out[name] = (sums, counts)
+            out[name] = score_plant(w, horizon, true_params(*spec), MODEL)
     return out
+
+
+def score_plant(w: Windows, horizon: int, P: np.ndarray, mode: int = MODEL) -> tuple[np.ndarray, np.ndarray]:
+    """Sums and counts (H, 4) of the plant ``P`` on the windows ``w`` (``mode``: MODEL, HOLD, RATE_FROZEN)."""
+    sums, counts = np.zeros((horizon, 4)), np.zeros((horizon, 4), dtype=np.int64)
+    U = w.inputs(P) if mode == MODEL else w.U
+    _rollout(w.t, w.X0, U, w.ok, w.tp, w.tq, w.tv, w.tw, horizon, P, mode, sums, counts)
+    return sums, counts
 
 
 def pool(parts: list[dict]) -> dict:

@@ -5,8 +5,10 @@ The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project add
 log's world frame), ``rotor_speed_min`` / ``rotor_speed_max`` and
 ``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
 ``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
-and ``extends`` (a path, relative to this file, of a vehicle whose keys this one
-overrides).
+``torque_remainder`` (:mod:`qr.torque_remainder`), ``residual`` (a learned wrench,
+:mod:`qr.residual`: its model file is relative to the YAML that names it, and rewritten
+relative to wherever the vehicle is saved) and ``extends`` (a path, relative to this
+file, of a vehicle whose keys this one overrides).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
-                         "description", "source", "torque_remainder", "rotor_input", "command_map"} \
+                         "description", "source", "torque_remainder", "residual", "rotor_input", "command_map"} \
     | set(OPTIONAL_DEFAULTS)
 ROTOR_INPUTS = ("speed", "command")
 
@@ -44,6 +46,7 @@ class Vehicle:
     rotors: RotorMap
     rotor_speed_unit: str
     raw: dict = field(repr=False)  # the validated mapping (for saving / extending)
+    residual: object = field(default=None, repr=False)  # a learned wrench (qr.residual.Residual), read at load
 
     @property
     def J(self) -> np.ndarray:
@@ -220,6 +223,10 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
         from .torque_remainder import validate
 
         raw["torque_remainder"] = validate(raw["torque_remainder"], path)
+    if raw.get("residual") is not None:
+        from .residual import load
+
+        vehicle.residual = load(raw["residual"], path)
     return vehicle
 
 
@@ -294,6 +301,10 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
         raise QrInputError(path, "vehicle file nests too deep", "write a flat 'key: value' file") from None
     if raw is None:
         raise QrInputError(path, "vehicle file is empty", "write the keys of docs/spec/flight-log.md")
+    if isinstance(raw, dict) and "residual" in raw:  # its model file: relative to the file that names it
+        from .residual import absolute
+
+        raw["residual"] = absolute(raw["residual"], path.parent)
     if isinstance(raw, dict) and "extends" in raw:
         base_name = raw["extends"]
         if not isinstance(base_name, str) or not base_name.strip():
@@ -327,6 +338,10 @@ def load_vehicle(path: str | Path) -> Vehicle:
 def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None = None) -> None:
     raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
     raw.pop("extends", None)
+    if "residual" in raw:  # its model file, as seen from where this file goes
+        from .residual import relative
+
+        raw["residual"] = relative(raw["residual"], Path(path).parent)
     text = yaml.safe_dump(plain(raw), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text

@@ -9,7 +9,7 @@ COPIES = sorted((ROOT / "docs" / "spec").glob("*.md"))
 
 
 def test_the_specs_a_user_needs_are_in_docs():
-    assert {p.name for p in COPIES} >= {"flight-log.md", "diagnosis.md", "evaluate.md"}
+    assert {p.name for p in COPIES} >= {"flight-log.md", "diagnosis.md", "evaluate.md", "hybrid.md"}
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason="no ../shared/spec beside this checkout to compare with")

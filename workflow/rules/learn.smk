@@ -81,3 +81,29 @@ rule learn_best:
         "../envs/qr.yaml"
     script:
         "../scripts/learn_best.py"
+
+
+# A residual trained through the rollout (qr learn residual, docs/spec/hybrid.md) on a set's training
+# flights (every third flight held out, as rule evaluate_held_out holds it out), on top of the physical
+# part of that rule's extended vehicle.  Not in `rule all`: request it, e.g.
+#   snakemake --cores 2 results/learn/residual/brushless
+rule learn_residual:
+    input:
+        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
+        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
+        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        # (a function: rule evaluate_held_out is defined in evaluate.smk, included after this file)
+        diagnosis=lambda wc: rules.evaluate_held_out.output.diagnosis.format(set=wc.set),
+        config="conf/learn/residual.yaml",
+    output:
+        directory("results/learn/residual/{set}"),
+    log:
+        "results/logs/learn/residual_{set}.log",
+    benchmark:
+        "results/benchmarks/learn/residual_{set}.tsv"
+    params:
+        overrides=["learn.keep_remainder=false", *LEARN.get("residual", [])],
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/learn_residual.py"

@@ -28,13 +28,15 @@ P_MASS, P_J, P_B, P_SCALE, P_CQGAIN, P_TAU, P_DELAY = 0, 1, 4, 20, 24, 25, 26
 P_LIN, P_QUAD, P_RDRAG, P_WIND, P_BBIAS, P_GE, P_GZ = 27, 30, 33, 34, 37, 40, 41
 P_CG, P_TBIAS, P_FLAP, P_MARKER = 42, 44, 47, 48
 P_REM_ON, P_UHOVER, P_REM = 51, 52, 53  # a learned torque remainder (qr.torque_remainder): flag, u_hover, W (3 x 11)
-N_P = 53 + 33
+P_RES_ON = 86  # a learned wrench (qr.residual): flag; the network follows at P[N_P:] (qr.residual.pack)
+N_P = 87
 N_X = 17
 MIN_GROUND_HEIGHT = 0.02  # m; keeps k T / p_z² finite if a crash is simulated
 
 
-def true_params(vehicle, effects: list[dict] | None = None) -> np.ndarray:
-    """Pack the vehicle and catalog effects into the plant's parameter vector."""
+def true_params(vehicle, effects: list[dict] | None = None, residual: bool = True) -> np.ndarray:
+    """Pack the vehicle and catalog effects into the plant's parameter vector (``residual``: with the
+    vehicle's learned wrench, if it has one, appended after ``N_P``)."""
     P = np.zeros(N_P)
     P[P_MASS] = vehicle.mass
     P[P_J:P_J + 3] = vehicle.inertia
@@ -86,7 +88,64 @@ def true_params(vehicle, effects: list[dict] | None = None) -> np.ndarray:
             raise KeyError(n)
     if P[P_MASS] <= 0 or np.any(P[P_J:P_J + 3] <= 0):
         raise ValueError("effects make the true mass or inertia non-positive")
+    net = getattr(vehicle, "residual", None)
+    if residual and net is not None:
+        from ..residual import pack
+
+        P[P_RES_ON] = 1.0
+        P = np.concatenate([P, pack(net)])
     return P
+
+
+@nb.njit(cache=True)
+def residual_wrench(P, vb0, vb1, vb2, wx, wy, wz, g0, g1, g2, u):
+    """The learned wrench of ``qr.residual`` (body force, N, and torque, N m) from the network packed at
+    ``P[N_P:]`` (:func:`qr.residual.pack`): features, normalisation, the layers, the output scale."""
+    o = N_P
+    speed = P[o + 5]
+    relu = P[o + 6] != 0.0
+    L = int(P[o + 7])
+    width = 0
+    for k in range(L + 1):
+        width = max(width, int(P[o + 8 + k]))
+    z = np.empty(width)
+    y = np.empty(width)
+    n = 0
+    if P[o] != 0.0:
+        z[0], z[1], z[2] = vb0, vb1, vb2
+        n = 3
+    if P[o + 1] != 0.0:
+        z[n], z[n + 1], z[n + 2] = wx, wy, wz
+        n += 3
+    if P[o + 2] != 0.0:
+        z[n], z[n + 1], z[n + 2] = g0, g1, g2
+        n += 3
+    if P[o + 3] != 0.0:
+        for i in range(4):
+            z[n + i] = u[i] / speed
+        n += 4
+    if P[o + 4] != 0.0:
+        for i in range(4):
+            s = u[i] / speed
+            z[n + i] = s * s
+        n += 4
+    a = o + 8 + L + 1
+    for i in range(n):
+        z[i] = (z[i] - P[a + i]) / P[a + n + i]
+    a += 2 * n
+    for k in range(L):
+        d_in, d_out = int(P[o + 8 + k]), int(P[o + 9 + k])
+        for r in range(d_out):
+            acc = P[a + d_out * d_in + r]
+            base = a + r * d_in
+            for c in range(d_in):
+                acc += P[base + c] * z[c]
+            if k < L - 1:
+                acc = max(acc, 0.0) if relu else math.tanh(acc)
+            y[r] = acc
+        a += d_out * d_in + d_out
+        z, y = y, z
+    return (z[0] * P[a], z[1] * P[a + 1], z[2] * P[a + 2], z[3] * P[a + 3], z[4] * P[a + 4], z[5] * P[a + 5])
 
 
 @nb.njit(cache=True, inline="always")
@@ -124,6 +183,12 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
         h = x[2] + R20 * P[P_MARKER] + R21 * P[P_MARKER + 1] + R22 * P[P_MARKER + 2] - P[P_GZ]
         h = max(h, MIN_GROUND_HEIGHT)
         f2 += P[P_GE] * T / (h * h)
+    r0 = r1 = r2 = r3 = r4 = r5 = 0.0
+    if P[P_RES_ON] != 0.0:
+        r0, r1, r2, r3, r4, r5 = residual_wrench(P, vb0, vb1, vb2, wx, wy, wz, -R20, -R21, -R22, u_eff)
+        f0 += r0
+        f1 += r1
+        f2 += r2
     m = P[P_MASS]
     ax = (R00 * f0 + R01 * f1 + R02 * f2 + P[P_WIND]) / m
     ay = (R10 * f0 + R11 * f1 + R12 * f2 + P[P_WIND + 1]) / m
@@ -144,6 +209,9 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
                 t1 += acc
             else:
                 t2 += acc
+    t0 += r3
+    t1 += r4
+    t2 += r5
     Jx, Jy, Jz = P[P_J], P[P_J + 1], P[P_J + 2]
     # tau + (J w) x w
     t0 += Jy * wy * wz - Jz * wz * wy

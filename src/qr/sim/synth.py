@@ -205,17 +205,18 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
     check_out_dir(outdir, inputs=inputs, force=force, expected=OUTPUTS)
     effects = validate_effect_list(vehicle.effects) + validate_effect_list(effects)
     true_vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
-    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder: both are the truth
+    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder or wrench (qr.residual):
+    # all are the truth
     nominal = true_vehicle.to_dict()
-    remainder = nominal.pop("torque_remainder", None)
+    learned = {k: nominal.pop(k) for k in ("torque_remainder", "residual") if k in nominal}
     with atomic_dir(outdir, force=force, command="qr synth") as tmp:
         flight, truth = synthesize(true_vehicle, effects, cfg)
-        vehicle = true_vehicle if remainder is None else vehicle_from_dict(nominal)
+        vehicle = vehicle_from_dict(nominal) if learned else true_vehicle
         meta = {
             "schema": "qr.synth/1",
             "vehicle": vehicle.name,
             "effects": effects,
-            **({"torque_remainder": remainder} if remainder is not None else {}),
+            **learned,
             "seed": cfg.seed,
             "duration": cfg.duration,
             "rate": cfg.rate,

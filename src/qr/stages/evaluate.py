@@ -76,10 +76,7 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     from .. import conventions
     from ..atomic import atomic_dir, write_json, write_text
     from ..config import to_dict
-    from ..diagnose.crossfit import Estimates, fixed_settings
-    from ..estimation import estimate
     from ..estimation.settings import resolve as resolve_filter
-    from ..segments import flight_segments
 
     say = log or (lambda msg: print(f"qr evaluate: {msg}", file=sys.stderr))
     cfg = _compose(overrides)
@@ -89,23 +86,13 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     models = models_of(vehs, names)
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
-        fs = flight_segments(m, vehs[0], 2 * ecfg.trim_s + 0.5, f)
         conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command")
-        settings = fixed_settings(filter_cfg, reports[i]) if reports else filter_cfg
-        stored = Estimates(estimates[i], filter_cfg, reports[i], vehs[0]) if estimates and reports else None
         parts = []
-        for seg in fs.used:
-            got = stored.get(seg.window[0]) if stored else None
-            say(f"estimates of {Path(f).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
-                + ("read from the filter stage" if got else "filtering"))
-            st = got[0] if got else estimate(seg.rows, vehs[0], settings)[0]
-            st, meas, keep = pieces(st, seg.rows, ecfg.trim_s)
+        for st, meas, keep in estimated_pieces(f, m, vehs[0], ecfg, filter_cfg, reports[i] if reports else None,
+                                               estimates[i] if estimates and reports else None, say):
             steps.append(np.diff(st["t"].to_numpy(float)))
             say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
             parts.append(rollout.score(st, meas, ecfg.horizon, ecfg.max_input_gap, models, keep))
-        if not parts:
-            raise QrInputError(f, "no airborne, gap-free segment is long enough to evaluate",
-                               "give a longer flight, or a smaller evaluate.trim_s")
         per_flight[str(f)] = rollout.pool(parts)
     pooled = rollout.pool(list(per_flight.values()))
     dt = np.concatenate(steps)
@@ -135,6 +122,35 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         track_evaluation(track, doc, [*flights, *map(vehicle_file, vehicles)], out)  # (a vehicle by name: its file)
     say(f"wrote {out}/evaluation.json")
     return doc
+
+
+def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
+                     report: dict | None = None, stored=None, say=lambda msg: None) -> list:
+    """The evaluate protocol's pieces of one flight: ``(states, measured, keep)`` per airborne, gap-free
+    segment (:func:`qr.rollout.pieces`), the start states from the filter stage's estimate.
+
+    Split like ``qr diagnose`` splits a flight; each segment filtered with ``filter_cfg`` (the tuned noise
+    values of the filter stage's ``report`` frozen, when given) or, with ``stored`` (the filter stage's
+    cross-fit file, with ``report``), its estimate read from there where it matches.  The one path by
+    which ``qr evaluate`` and ``qr learn residual`` get their windows."""
+    from ..diagnose.crossfit import Estimates, fixed_settings
+    from ..estimation import estimate
+    from ..segments import flight_segments
+
+    fs = flight_segments(flight, vehicle, 2 * ecfg.trim_s + 0.5, path)
+    settings = fixed_settings(filter_cfg, report) if report else filter_cfg
+    stored = Estimates(stored, filter_cfg, report, vehicle) if stored is not None and report else None
+    out = []
+    for seg in fs.used:
+        got = stored.get(seg.window[0]) if stored else None
+        say(f"estimates of {Path(path).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+            + ("read from the filter stage" if got else "filtering"))
+        st = got[0] if got else estimate(seg.rows, vehicle, settings)[0]
+        out.append(pieces(st, seg.rows, ecfg.trim_s))
+    if not out:
+        raise QrInputError(path, "no airborne, gap-free segment is long enough to evaluate",
+                           "give a longer flight, or a smaller evaluate.trim_s")
+    return out
 
 
 def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:

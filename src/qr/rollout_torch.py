@@ -1,0 +1,268 @@
+"""The rollout's differentiable twin (torch, float64): the same plant, step and errors as :mod:`qr.rollout`.
+
+The compiled plant (:mod:`qr.sim.plant`) with the parameter vector ``P`` in its own layout: the
+rigid-body derivative with the rotor map (per-rotor thrust scale: C_T; yaw-torque gain: C_Q), every
+catalog effect, the learned torque remainder, and a learned wrench — here any torch module taking the
+features of :mod:`qr.residual` — RK4 over each window's own steps with the measured rotor speeds held
+(zero-order hold, the actuator delay applied to the input), the quaternion renormalised, the tracked
+point (marker offset) in and out.  ``tests/learn/test_rollout_torch.py`` holds it equal to the compiled
+plant to 1e-9 on random states and inputs, for the nominal vehicle and with every catalog effect.
+
+Everything is differentiable in ``P`` (so in J, C_T, C_Q and the effects' parameters: :func:`place`
+puts tensors at their slots) and in the residual's weights; :func:`window_errors` returns the per-step
+errors of a batch of windows, the quantities ``qr evaluate`` averages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from .frames import G
+from .residual import GROUPS, ORDER
+from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_GE, P_GZ, P_J,
+                        P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDRAG, P_REM, P_REM_ON, P_SCALE, P_TBIAS, P_UHOVER,
+                        P_WIND)
+
+DTYPE = torch.float64
+
+
+def place(P0, values: dict) -> torch.Tensor:
+    """``P0`` (the plant's vector) as a tensor with ``values`` (slot index → tensor) put at their slots,
+    differentiably: e.g. ``{P_J: J (3,), P_SCALE: c_t / c_t0 * ones(4), P_CQGAIN: c_q / c_q0}``."""
+    P = torch.as_tensor(np.asarray(P0, float)[:N_P], dtype=DTYPE).clone()
+    for i, v in values.items():
+        v = torch.as_tensor(v, dtype=DTYPE).reshape(-1)
+        P = torch.cat([P[:i], v, P[i + len(v):]])
+    return P
+
+
+def body_features(inputs, v_b, w, g_b, u, speed_scale: float) -> torch.Tensor:
+    """The residual's features ``φ`` (:func:`qr.residual.features`), in torch."""
+    s = u / speed_scale
+    parts = {"v_b": v_b, "omega": w, "g_b": g_b, "u": s, "u2": s * s}
+    return torch.cat([parts[g] for g in ORDER if g in inputs], dim=-1)
+
+
+class ResidualNet(torch.nn.Module):
+    """The MLP of :mod:`qr.residual` in torch: ``s_out ⊙ MLP((φ − μ) / σ)`` (body force and torque)."""
+
+    def __init__(self, inputs, width: int, depth: int, activation: str, input_mean, input_scale,
+                 output_scale, rotor_speed_scale: float):
+        super().__init__()
+        self.inputs = tuple(g for g in ORDER if g in inputs)
+        self.activation = activation
+        self.rotor_speed_scale = float(rotor_speed_scale)
+        n_in = sum(GROUPS[g] for g in self.inputs)
+        dims = [n_in] + [width] * depth + [6]
+        self.layers = torch.nn.ModuleList(torch.nn.Linear(a, b, dtype=DTYPE) for a, b in zip(dims[:-1], dims[1:]))
+        self.register_buffer("input_mean", torch.as_tensor(np.asarray(input_mean, float), dtype=DTYPE))
+        self.register_buffer("input_scale", torch.as_tensor(np.asarray(input_scale, float), dtype=DTYPE))
+        self.register_buffer("output_scale", torch.as_tensor(np.asarray(output_scale, float), dtype=DTYPE))
+
+    def forward(self, phi: torch.Tensor) -> torch.Tensor:
+        z = (phi - self.input_mean) / self.input_scale
+        for k, layer in enumerate(self.layers):
+            z = layer(z)
+            if k < len(self.layers) - 1:
+                z = torch.tanh(z) if self.activation == "tanh" else torch.relu(z)
+        return z * self.output_scale
+
+    def wrench(self, v_b, w, g_b, u) -> torch.Tensor:
+        return self(body_features(self.inputs, v_b, w, g_b, u, self.rotor_speed_scale))
+
+    @classmethod
+    def from_residual(cls, res) -> "ResidualNet":
+        """The torch module of a :class:`qr.residual.Residual` (same weights)."""
+        depth = len(res.weights) - 1
+        width = res.weights[0].shape[0] if depth else 0
+        net = cls(res.inputs, width, depth, res.activation, res.input_mean, res.input_scale, res.output_scale,
+                  res.rotor_speed_scale)
+        if any(W.shape[0] != width for W in res.weights[:-1]):  # uneven widths: rebuild the layers
+            net.layers = torch.nn.ModuleList(torch.nn.Linear(W.shape[1], W.shape[0], dtype=DTYPE)
+                                             for W in res.weights)
+        with torch.no_grad():
+            for layer, W, b in zip(net.layers, res.weights, res.biases):
+                layer.weight.copy_(torch.as_tensor(W, dtype=DTYPE))
+                layer.bias.copy_(torch.as_tensor(b, dtype=DTYPE))
+        return net
+
+    def to_residual(self):
+        from .residual import Residual
+
+        return Residual(self.inputs, self.activation,
+                        tuple(layer.weight.detach().numpy().copy() for layer in self.layers),
+                        tuple(layer.bias.detach().numpy().copy() for layer in self.layers),
+                        self.input_mean.numpy().copy(), self.input_scale.numpy().copy(),
+                        self.output_scale.numpy().copy(), self.rotor_speed_scale)
+
+
+def _rotation_map() -> tuple[torch.Tensor, torch.Tensor]:
+    """``M`` (16, 9) and ``E`` (9,): the entries of R (row by row) as ``vec(q qᵀ) M + E``
+    (:func:`qr.frames_compiled.R_entries`: the plant's own formula, q not normalised)."""
+    M = torch.zeros(4, 4, 9, dtype=DTYPE)
+    for i, terms in enumerate([((2, 2, -2), (3, 3, -2)), ((1, 2, 2), (0, 3, -2)), ((1, 3, 2), (0, 2, 2)),
+                               ((1, 2, 2), (0, 3, 2)), ((1, 1, -2), (3, 3, -2)), ((2, 3, 2), (0, 1, -2)),
+                               ((1, 3, 2), (0, 2, -2)), ((2, 3, 2), (0, 1, 2)), ((1, 1, -2), (2, 2, -2))]):
+        for j, k, c in terms:
+            M[j, k, i] = c
+    return M.reshape(16, 9), torch.tensor([1.0, 0, 0, 0, 1, 0, 0, 0, 1], dtype=DTYPE)
+
+
+def _quat_rate_map() -> torch.Tensor:
+    """``C`` (12, 4): ``q̇ = ½ vec(q ωᵀ) C`` is ``½ q ⊗ [0, ω]``."""
+    C = torch.zeros(4, 3, 4, dtype=DTYPE)
+    for out, terms in enumerate([((1, 0, -1), (2, 1, -1), (3, 2, -1)), ((0, 0, 1), (2, 2, 1), (3, 1, -1)),
+                                 ((0, 1, 1), (3, 0, 1), (1, 2, -1)), ((0, 2, 1), (1, 1, 1), (2, 0, -1))]):
+        for j, k, c in terms:
+            C[j, k, out] = c
+    return C.reshape(12, 4)
+
+
+_RM, _RE = _rotation_map()
+_QC = _quat_rate_map()
+_G = torch.tensor([0.0, 0.0, G], dtype=DTYPE)
+_XY = torch.tensor([1.0, 1.0, 0.0], dtype=DTYPE)
+
+
+def rotation(q: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices (..., 3, 3) body → world of quaternions (..., 4), scalar first."""
+    qq = (q[..., :, None] * q[..., None, :]).flatten(-2)
+    return (qq @ _RM + _RE).unflatten(-1, (3, 3))
+
+
+class Plant:
+    """The parameter vector's pieces as the derivative uses them, taken from ``P`` once per rollout
+    (so a ``P`` that requires grad passes its gradient through every slot)."""
+
+    def __init__(self, P: torch.Tensor, residual=None, frozen: bool = False):
+        sc = P[P_SCALE:P_SCALE + 4]
+        B = P[P_B:P_B + 16].reshape(4, 4)
+        self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN]]).T  # (4, 4): u² → T, Γx, Γy, Γz
+        self.lin, self.quad, self.bias = P[P_LIN:P_LIN + 3], P[P_QUAD:P_QUAD + 3], P[P_BBIAS:P_BBIAS + 3]
+        self.rdrag = P[P_RDRAG] * _XY
+        self.ground = float(P[P_GE].detach()) != 0.0 or P.requires_grad
+        self.ge, self.gz, self.marker = P[P_GE], P[P_GZ], P[P_MARKER:P_MARKER + 3]
+        zero = torch.zeros((), dtype=DTYPE)
+        self.cg = torch.stack([-P[P_CG + 1], P[P_CG], zero])  # τ = r_cg × (0, 0, T)
+        k = P[P_FLAP]
+        self.flap = torch.stack([torch.stack([zero, -k, zero]), torch.stack([k, zero, zero]),
+                                 torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = k (v_y, −v_x, 0)
+        self.tbias, self.wind, self.mass, self.J = P[P_TBIAS:P_TBIAS + 3], P[P_WIND:P_WIND + 3], P[P_MASS], P[P_J:P_J + 3]
+        self.rem = P[P_REM:P_REM + 33].reshape(3, 11).T if float(P[P_REM_ON].detach()) != 0.0 else None
+        self.uh = P[P_UHOVER]
+        self.residual, self.frozen = residual, frozen
+
+    def accels(self, x: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        R = rotation(x[:, 6:10])
+        v_b = (x[:, None, 3:6] @ R).squeeze(1)  # Rᵀ v
+        w = x[:, 10:13]
+        W = (u * u) @ self.Bs
+        T = W[:, :1]
+        f = -self.lin * v_b - self.quad * v_b.abs() * v_b + self.bias - self.rdrag * u.sum(1, keepdim=True) * v_b
+        if self.ground:  # the ground effect where the vehicle has one (the compiled plant skips it at k = 0)
+            h = x[:, 2:3] + R[:, 2, :] @ self.marker[:, None] - self.gz
+            T = T + self.ge * T / torch.clamp(h, min=MIN_GROUND_HEIGHT) ** 2
+        f = f + torch.nn.functional.pad(T, (2, 0))
+        t = W[:, 1:] + W[:, :1] * self.cg + self.tbias + v_b @ self.flap
+        if self.rem is not None:  # the learned torque remainder (qr.torque_remainder), a linear map
+            phi = torch.cat([v_b, w, (u / self.uh) ** 2 - 1.0, torch.ones_like(T)], -1)
+            t = t + phi @ self.rem
+        if self.residual is not None:
+            r = self.residual.wrench(v_b, w, -R[:, 2, :], u)  # g_b = Rᵀ (0, 0, −1)
+            f = f + r[:, :3]
+            t = t + r[:, 3:]
+        a = ((R @ f[:, :, None]).squeeze(2) + self.wind) / self.mass - _G
+        alpha = (t + torch.linalg.cross(self.J * w, w)) / self.J
+        return a, alpha
+
+    def deriv(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        a, alpha = self.accels(x, u)
+        dq = 0.5 * ((x[:, 6:10, None] * x[:, None, 10:13]).flatten(1) @ _QC)
+        if self.frozen:
+            alpha = torch.zeros_like(alpha)
+        return torch.cat([x[:, 3:6], a, dq, alpha], -1)
+
+    def rk4(self, x: torch.Tensor, u: torch.Tensor, dt: torch.Tensor) -> torch.Tensor:
+        h = dt[:, None]
+        k1 = self.deriv(x, u)
+        k2 = self.deriv(x + 0.5 * h * k1, u)
+        k3 = self.deriv(x + 0.5 * h * k2, u)
+        k4 = self.deriv(x + h * k3, u)
+        xn = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        q = xn[:, 6:10]
+        return torch.cat([xn[:, :6], q / torch.sqrt((q * q).sum(-1, keepdim=True)), xn[:, 10:]], -1)
+
+
+def accels(x: torch.Tensor, u: torch.Tensor, P: torch.Tensor, residual=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """World acceleration of the CG (B, 3) and body angular acceleration (B, 3): ``qr.sim.plant._accels``."""
+    return Plant(P, residual).accels(x, u)
+
+
+def deriv(x: torch.Tensor, u: torch.Tensor, P: torch.Tensor, residual=None, frozen: bool = False) -> torch.Tensor:
+    """Derivatives (B, 13) of p, v, q, ω (``qr.sim.plant.rigid_body_deriv``); ``frozen``: ω held."""
+    return Plant(P, residual, frozen).deriv(x, u)
+
+
+def rk4(x: torch.Tensor, u: torch.Tensor, dt: torch.Tensor, P: torch.Tensor, residual=None,
+        frozen: bool = False) -> torch.Tensor:
+    """One RK4 step (rotor speeds ``u`` held over it; ``dt`` (B,)), the quaternion renormalised."""
+    return Plant(P, residual, frozen).rk4(x, u, dt)
+
+
+def _marker_terms(x: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``R r`` and ``R (ω × r)`` (world, (..., 3)), the tracked point's offsets from the CG."""
+    R = rotation(x[..., 6:10])
+    wr = torch.linalg.cross(x[..., 10:13], r.expand_as(x[..., 10:13]))
+    return (R @ r[:, None]).squeeze(-1), (R @ wr[..., None]).squeeze(-1)
+
+
+def rollout(X0: torch.Tensor, U: torch.Tensor, dt: torch.Tensor, P: torch.Tensor, residual=None,
+            frozen: bool = False) -> torch.Tensor:
+    """Predicted tracked-point states (B, H, 13) from start states ``X0`` (B, 13: p, v of the tracked
+    point, q, ω) driven by the rotor speeds ``U`` (B, H, 4; ``U[:, h-1]`` acts over step h) over the steps
+    ``dt`` (B, H): ``qr.rollout``'s windows (the caller applies the actuator delay to ``U``)."""
+    plant = Plant(P, residual, frozen)
+    r = P[P_MARKER:P_MARKER + 3]
+    pr, vr = _marker_terms(X0, r)
+    x = torch.cat([X0[:, :3] - pr, X0[:, 3:6] - vr, X0[:, 6:]], -1)
+    out = []
+    for h in range(U.shape[1]):
+        x = plant.rk4(x, U[:, h], dt[:, h])
+        out.append(x)
+    X = torch.stack(out, 1)
+    pr, vr = _marker_terms(X, r)
+    return torch.cat([X[..., :3] + pr, X[..., 3:6] + vr, X[..., 6:]], -1)
+
+
+def _norm(d: torch.Tensor) -> torch.Tensor:
+    """Euclidean norm over the last axis with a finite gradient at zero."""
+    s = (d * d).sum(-1)
+    return torch.sqrt(torch.where(s > 0, s, torch.ones_like(s))) * (s > 0)
+
+
+def window_errors(pred: torch.Tensor, tp, tq, tv, tw) -> torch.Tensor:
+    """Per-step errors (B, H, 4) of p (m), v (m/s), R (rad: angle of q_true⁻¹ ⊗ q) and ω (rad/s), as
+    ``qr.rollout`` sums them; NaN where the truth (B, H, ·) is missing (with a zero gradient there, so a
+    loss may mask them)."""
+    truth = [tp, tq, tv, tw]
+    present = torch.stack([torch.isfinite(x).all(-1) for x in (tp, tv, tq, tw)], -1)
+    tp, tq, tv, tw = (torch.nan_to_num(x) for x in truth)
+    d = (pred[..., 6:10] * tq).sum(-1).abs()
+    E = torch.stack([_norm(pred[..., 0:3] - tp), _norm(pred[..., 3:6] - tv),
+                     2.0 * torch.acos(torch.clamp(d, max=1.0)), _norm(pred[..., 10:13] - tw)], -1)
+    return torch.where(present, E, torch.full_like(E, float("nan")))
+
+
+def delayed_inputs(t: np.ndarray, U: np.ndarray, d: torch.Tensor) -> torch.Tensor:
+    """The rotor speeds acting at each stamp for a delay ``d`` (s), differentiably in ``d``
+    (``np.interp(t − d, t, U)``, as :meth:`qr.rollout.Windows.inputs`)."""
+    Ut = torch.as_tensor(U, dtype=DTYPE)
+    if float(d.detach()) <= 0:
+        return Ut
+    s = torch.as_tensor(np.array(t, float), dtype=DTYPE) - d
+    k = np.clip(np.searchsorted(t, s.detach().numpy(), side="right") - 1, 0, len(t) - 2)
+    t0, t1 = torch.as_tensor(t[k], dtype=DTYPE), torch.as_tensor(t[k + 1], dtype=DTYPE)
+    f = torch.clamp((s - t0) / (t1 - t0), 0.0, 1.0)[:, None]
+    return (1 - f) * Ut[k] + f * Ut[k + 1]
+

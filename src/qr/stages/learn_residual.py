@@ -1,0 +1,457 @@
+"""Stage learn, ``qr learn residual``: a residual trained through the rollout (docs/spec/hybrid.md).
+
+    qr learn residual FLIGHT.csv [FLIGHT2.csv ...] --vehicle VEHICLE.yaml --out OUTDIR [HYDRA_OVERRIDES...]
+    qr learn residual a.csv b.csv c.csv --vehicle v.yaml --out sweep -m learn.width=16,32 learn.depth=1,2
+
+The file I/O and MLflow layer around :mod:`qr.residual_fit`: the flights' windows (split and
+filtered by the one path ``qr evaluate`` uses, :func:`qr.stages.evaluate.estimated_pieces`), the
+training, then ``OUTDIR/hybrid_vehicle.yaml`` (the vehicle plus the key ``residual``),
+``residual.npz`` (the weights, :mod:`qr.residual`), ``training.json`` (schema ``qr.residual/1``),
+``report.md`` and ``figures/training_curve.png``, all written at once after the folder was checked.
+An MLflow run in experiment ``qr-learn`` logs the settings, the loss per epoch, the validation MAE per
+step h (metric steps) and the model (``mlflow.pytorch``, with its signature).
+
+A sweep (``-m``) runs one job per setting into ``OUTDIR/job<N>/`` and collects them into
+``OUTDIR/sweep.csv``; its MLflow runs are children of one parent run (:class:`ResidualSweep`).
+Settings are chosen on the validation windows only: no other flight is read.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import QrInputError
+
+OUTPUTS = ("hybrid_vehicle.yaml", "residual.npz", "training.json", "report.md", "figures/")
+SCHEMA = "qr.residual/1"
+JOB = "learn_residual"  # Hydra's job name for this stage's multiruns (the task's module)
+SWEEP_CSV = "sweep.csv"
+PARENT_FILE = ".mlflow_parent"
+
+
+def compose(overrides=()):
+    """The tree with ``learn=residual`` (``learn.*``: :class:`qr.residual_fit.ResidualNode`)."""
+    from ..config import compose_stage
+
+    return compose_stage(["learn=residual", *overrides], "evaluate", "learn.width=16")
+
+
+def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=None, cfg=None,
+                 reports: list | None = None, estimates: list | None = None, track: bool = True,
+                 run_name: str = "residual", parent_id: str | None = None) -> dict:
+    """Train on ``flights`` on top of ``vehicle``; write ``out`` (checked before any work); the
+    training.json document.  ``cfg``: the composed tree (else composed from ``overrides``);
+    ``reports`` / ``estimates``: the filter stage's files of each flight (as :func:`qr.stages.evaluate.
+    run_evaluation` takes them)."""
+    from ..outputs import check_out_dir
+
+    flights = [str(f) for f in flights]
+    out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+    from .. import residual_fit as rf
+    from ..config import to_dict
+    from ..estimation.settings import resolve as resolve_filter
+    from ..flight import read_flight
+    from ..rollout import EvaluateConfig, windows
+    from ..vehicle import load_vehicle, vehicle_from_dict
+    from .evaluate import estimated_pieces
+
+    say = log or (lambda msg: print(f"qr learn residual: {msg}", file=sys.stderr))
+    cfg = compose(overrides) if cfg is None else cfg
+    plain = to_dict(cfg)
+    rcfg = rf.ResidualConfig.from_dict(plain["learn"])
+    ecfg = EvaluateConfig.from_dict(plain["evaluate"])
+    filter_cfg = plain["filter"]
+    resolve_filter(filter_cfg)
+    seed = int(plain.get("seed", 0))
+    if len(set(flights)) < len(flights):
+        dup = next(f for f in flights if flights.count(f) > 1)
+        raise QrInputError(dup, "the same flight is given twice", "give each flight once")
+    veh = load_vehicle(vehicle)
+    if not rcfg.keep_remainder and "torque_remainder" in veh.raw:
+        raw = veh.to_dict()
+        raw.pop("torque_remainder")
+        veh = vehicle_from_dict(raw, vehicle)
+    t0 = time.perf_counter()
+    pieces = []
+    for i, f in enumerate(flights):
+        for st, meas, keep in estimated_pieces(f, read_flight(f), veh, ecfg, filter_cfg,
+                                               reports[i] if reports else None,
+                                               estimates[i] if estimates and reports else None, say):
+            pieces.append((f, windows(st, meas, rcfg.horizon, ecfg.max_input_gap, keep)))
+    estimate_s = time.perf_counter() - t0
+    parts, split = rf.split(pieces, rcfg.horizon, rcfg.validation, rcfg.stride)
+    say(f"validation: {', '.join(Path(f).name for f in split['validation'])}"
+        + (f" from t = {split['validation_from_s']:.2f} s" if split["by"] == "time" else " (whole flights)"))
+    curve = []
+    trained = rf.train(rcfg, veh, parts, seed, say, on_epoch=curve.append)
+    raw = veh.to_dict()
+    raw.pop("residual", None)
+    physical = vehicle_from_dict(raw)  # the vehicle without a residual (a fine-tuned one is replaced)
+    res = trained.net.to_residual()
+    hybrid = physical.with_changes()
+    hybrid.residual = res
+    blocks = rf.validation_blocks(parts, {"vehicle": physical, "hybrid": hybrid}, rcfg.horizon)
+    doc = _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh)
+    _write(out, force, physical, res, doc, say)
+    if track:
+        _track(run_name, parent_id, doc, out, trained.net, [*flights, vehicle])
+    say(f"wrote {out}/hybrid_vehicle.yaml ({trained.wall_s:.0f} s of training, best epoch {trained.best_epoch})")
+    return doc
+
+
+def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = None,
+                   estimates: list | None = None, **kwargs) -> dict:
+    """The held-out protocol's training (the workflow's): every third flight is held out as ``qr evaluate``'s
+    held-out rule holds it out (:func:`qr.stages.evaluate.held_out_by_flight`) and never opened; the others
+    train (``reports`` / ``estimates``: the filter stage's files, or reports already read, of every flight
+    in the same order)."""
+    import json
+
+    from .evaluate import held_out_by_flight
+
+    flights = [str(f) for f in flights]
+    train, _ = held_out_by_flight(flights)
+    pick = lambda files: [files[flights.index(f)] for f in train] if files else None  # noqa: E731
+    reports = [json.loads(Path(r).read_text()) if isinstance(r, (str, Path)) else r for r in pick(reports) or []]
+    return run_residual(train, vehicle, out, overrides, reports=reports or None, estimates=pick(estimates), **kwargs)
+
+
+def _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh) -> dict:
+    import torch
+
+    from ..rollout import QUANTITIES, at
+
+    H = rcfg.horizon
+    hs = sorted({h for h in (1, 10, H) if h <= H})
+    mae = {m: {q: {str(h): at(b, h, q) for h in hs} for q in QUANTITIES} for m, b in blocks.items()}
+    ratio = {m: {q: (None if at(b, H, q) is None or not at(blocks["rate_frozen"], H, q)
+                     else at(b, H, q) / at(blocks["rate_frozen"], H, q)) for q in QUANTITIES}
+             for m, b in blocks.items()}
+    learn = {k: v for k, v in plain["learn"].items() if k not in ("flights", "vehicle", "out", "force")}
+    return {
+        "schema": SCHEMA,
+        "vehicle": str(vehicle),
+        "flights": {"training": [f for f in flights if f in split["training"]],
+                    "validation": [f for f in flights if f in split["validation"]],
+                    "validation_by": split["by"],
+                    **({"validation_from_s": split["validation_from_s"]} if split["by"] == "time" else {})},
+        "windows": {"training": trained.windows["train"], "validation": trained.windows["val"],
+                    "stride": rcfg.stride},
+        "horizon": H,
+        "loss": {"signal_weights": dict(zip(QUANTITIES, rcfg.signal_weights.vector().tolist())),
+                 "horizon_power": rcfg.horizon_power, "horizon_weights": rcfg.horizon_weights().tolist(),
+                 "reference": trained.reference,
+                 "formula": "sum_s lambda_s sum_h w_h MAE_{s,h} / ref_s; ref_s = rate_frozen's mean MAE over h "
+                            "on the training windows"},
+        "network": {"inputs": list(trained.net.inputs), "layers": trained.net.to_residual().layers,
+                    "activation": trained.net.activation, "start": "fine-tuned from the vehicle's residual"
+                    if getattr(veh, "residual", None) is not None else "new, zero output"},
+        "epochs": {"run": len(trained.epochs), "best": trained.best_epoch, "stopped": trained.stopped,
+                   "limit": rcfg.epochs, "patience": rcfg.patience, "skipped_steps": trained.skipped_steps},
+        "seed": seed,
+        "wall_s": {"training": trained.wall_s, "estimates": estimate_s},
+        "initial_loss": trained.initial,
+        "loss_per_epoch": trained.epochs,
+        "validation": {"mae": mae, "ratio_to_rate_frozen_at_H": ratio,
+                       "models": {"vehicle": "the vehicle without the residual", "hybrid": "with the residual",
+                                  "rate_frozen": "the benchmark's physics baseline (qr evaluate's reference)"}},
+        "config": {"learn": learn, "evaluate": plain["evaluate"], "filter": plain["filter"]},
+        "software": {"torch": torch.__version__, "threads": 1},
+    }
+
+
+def _write(out: Path, force: bool, physical, res, doc: dict, say) -> None:
+    from .. import residual as rs
+    from ..atomic import atomic_dir, write_json, write_text
+    from ..vehicle import load_vehicle, save_vehicle
+
+    note = (f"trained through the {doc['horizon']}-step rollout on {len(doc['flights']['training'])} flight(s) "
+            "by qr learn residual: a learned wrench, not a physical effect")
+    with atomic_dir(out, force=force, command="qr learn residual") as tmp:
+        rs.save_weights(res, tmp / "residual.npz")
+        raw = physical.to_dict()
+        raw["residual"] = rs.block(res, str((tmp / "residual.npz").resolve()), note)
+        header = (f"Hybrid vehicle from qr learn residual on {', '.join(Path(f).name for f in doc['flights']['training'])}"
+                  f": {doc['vehicle']} plus a learned wrench (residual.npz)")
+        save_vehicle(raw, tmp / "hybrid_vehicle.yaml", header=header)
+        load_vehicle(tmp / "hybrid_vehicle.yaml")  # what was written loads (weights, shapes, scaling)
+        (tmp / "figures").mkdir()
+        curve_figure(doc, tmp / "figures" / "training_curve.png")
+        write_text(tmp / "report.md", report(doc))
+        write_json(tmp / "training.json", doc)
+
+
+def curve_figure(doc: dict, path: Path) -> None:
+    from ..report import figures
+
+    ep = doc["loss_per_epoch"]
+    fig, ax = figures.subplots(1, 1, figsize=(5.5, 3.4), layout="constrained")
+    x = [0] + [e["epoch"] for e in ep]
+    ax.plot(x, [doc["initial_loss"]["train_loss"]] + [e["train_loss"] for e in ep], label="training", color="C0")
+    ax.plot(x, [doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in ep], label="validation", color="C1")
+    ax.axvline(doc["epochs"]["best"], color="0.5", ls=":", label=f"kept (epoch {doc['epochs']['best']})")
+    ax.set_xlabel("epoch (0: the vehicle without the residual)")
+    ax.set_ylabel("rollout loss (weighted MAE / rate_frozen)")
+    ax.legend(fontsize=7)
+    figures.save(fig, path)
+
+
+def report(doc: dict) -> str:
+    from ..rollout import QUANTITIES
+
+    H = doc["horizon"]
+    val, mae = doc["validation"]["ratio_to_rate_frozen_at_H"], doc["validation"]["mae"]
+    hs = list(next(iter(next(iter(mae.values())).values())))
+    fl = doc["flights"]
+    where = (f"{len(fl['validation'])} whole validation flight(s) ({', '.join(Path(f).name for f in fl['validation'])})"
+             if fl["validation_by"] == "flight" else f"the flight's time from {fl['validation_from_s']:.2f} s on")
+    best = min([doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in doc["loss_per_epoch"]])
+    lines = [f"# Residual trained through the rollout ({len(fl['training'])} training flight(s))", "",
+             f"A {doc['network']['activation']} MLP {doc['network']['layers']} from {', '.join(doc['network']['inputs'])} "
+             f"to a body force and torque, added to `{doc['vehicle']}` at every evaluation of the dynamics and "
+             f"trained by back-propagating the {H}-step rollout loss (RK4, measured rotor speeds held) on "
+             f"{doc['windows']['training']} training windows; early stopping on {doc['windows']['validation']} "
+             f"windows of {where}. Loss: {doc['loss']['formula']}; signal weights "
+             + ", ".join(f"{q} {w:g}" for q, w in doc["loss"]["signal_weights"].items())
+             + f", step weights ∝ h^{doc['loss']['horizon_power']:g}.", "",
+             f"Training: {doc['epochs']['run']} epoch(s) ({doc['epochs']['stopped']}), the weights of epoch "
+             f"{doc['epochs']['best']} kept, {doc['wall_s']['training']:.1f} s; validation loss "
+             f"{doc['initial_loss']['val_loss']:.4f} at the start ("
+             + ("the vehicle's own residual, fine-tuned" if doc["network"]["start"].startswith("fine") else
+                "the vehicle without a residual") + "), "
+             f"{best:.4f} with the kept weights.",
+             "", "![training curve](figures/training_curve.png)", "",
+             "## Validation windows (the compiled rollout of `qr evaluate`)", "",
+             "MAE per step h: p (m), v (m/s), R (rad), w (rad/s); the ratio to `rate_frozen` at h = H.", ""]
+    head = ["model"] + [f"{q}@{h}" for q in QUANTITIES for h in hs] + [f"{q} / rate_frozen" for q in QUANTITIES]
+    lines += ["| " + " | ".join(head) + " |", "|---|" + "---:|" * (len(head) - 1)]
+    fmt = lambda x: "–" if x is None else f"{x:.4g}"  # noqa: E731
+    for m in ("rate_frozen", "vehicle", "hybrid"):
+        cells = [fmt(mae[m][q][h]) for q in QUANTITIES for h in hs] + [fmt(val[m][q]) for q in QUANTITIES]
+        lines.append(f"| {m} | " + " | ".join(cells) + " |")
+    better = [q for q in QUANTITIES if val["hybrid"][q] is not None and val["vehicle"][q] is not None
+              and val["hybrid"][q] < val["vehicle"][q]]
+    lines += ["", f"At h = {H} the residual lowers the validation error of {', '.join(better) or 'no signal'}"
+              + (f" and raises that of {', '.join(q for q in QUANTITIES if q not in better)}"
+                 if len(better) < len(QUANTITIES) else "") + ". These are the windows that stopped the training: "
+              "judge the model on held-out flights with `qr evaluate`.", ""]
+    return "\n".join(lines)
+
+
+def _track(name: str, parent_id, doc: dict, out: Path, net, inputs) -> None:
+    """One MLflow run (experiment ``qr-learn``): settings, loss per epoch, validation MAE per h, the model."""
+    import torch
+
+    from .. import tracking
+    from ..rollout import QUANTITIES
+
+    tags = {"qr.run": name, "qr.kind": "residual"}
+    if parent_id:
+        tags["mlflow.parentRunId"] = parent_id
+    with tracking.run("learn", name, config={"learn": doc["config"]["learn"], "seed": doc["seed"],
+                                             "evaluate": doc["config"]["evaluate"]},
+                      inputs=inputs, tags=tags) as run:
+        for e in doc["loss_per_epoch"]:
+            run.metrics({"train_loss": e["train_loss"], "val_loss": e["val_loss"]}, step=e["epoch"])
+        for model in ("vehicle", "hybrid"):
+            for q in QUANTITIES:
+                for h, x in doc["validation"]["mae"][model][q].items():
+                    run.metrics({f"val.{model}.{q}_mae": x}, step=int(h))
+                run.metrics({f"val.{model}.{q}_ratio": doc["validation"]["ratio_to_rate_frozen_at_H"][model][q]})
+        run.metrics({"train_wall_s": doc["wall_s"]["training"], "best_epoch": doc["epochs"]["best"]})
+        for p in ("training.json", "report.md", "hybrid_vehicle.yaml", "residual.npz"):
+            run.artifact(out / p)
+        module = mlflow_module(net)
+        X = np.asarray(net.input_mean.numpy()[None, :] + net.input_scale.numpy()[None, :]
+                       * np.linspace(-1, 1, 5)[:, None])
+        with torch.no_grad():
+            y = module(torch.as_tensor(X)).numpy()
+        run.model("pytorch", module, X, y, [f"torch=={torch.__version__.split('+')[0]}"])
+
+
+def mlflow_module(net):
+    """A self-contained torch module of the residual (features φ → body wrench), for ``mlflow.pytorch``:
+    the input normalisation and the output scale as fixed affine layers around the MLP."""
+    import copy
+
+    import torch
+
+    def affine(scale, shift):
+        layer = torch.nn.Linear(len(scale), len(scale), dtype=torch.float64)
+        with torch.no_grad():
+            layer.weight.copy_(torch.diag(torch.as_tensor(scale, dtype=torch.float64)))
+            layer.bias.copy_(torch.as_tensor(shift, dtype=torch.float64))
+        return layer
+
+    act = torch.nn.Tanh if net.activation == "tanh" else torch.nn.ReLU
+    layers = []
+    for k, layer in enumerate(net.layers):
+        layers.append(copy.deepcopy(layer))
+        if k < len(net.layers) - 1:
+            layers.append(act())
+    mean, scale = net.input_mean.numpy(), net.input_scale.numpy()
+    out = net.output_scale.numpy()
+    return torch.nn.Sequential(affine(1 / scale, -mean / scale), *layers, affine(out, np.zeros_like(out))).eval()
+
+
+# ---- the command line: one run, or a Hydra multirun (-m) ------------------------------------------
+
+def _quoted(s: str) -> str:
+    return "'" + str(s).replace("\\", "\\\\").replace("'", "\\'") + "'"
+
+
+def main(flights, vehicle, out, rest, force: bool = False) -> None:
+    """``qr learn residual``: ``rest`` holds the Hydra overrides and ``-m`` / ``--multirun``."""
+    multirun = any(a in ("-m", "--multirun") for a in rest)
+    overrides = [a for a in rest if a not in ("-m", "--multirun")]
+    bad = [a for a in overrides if a.startswith("-")]
+    if bad:
+        raise QrInputError(bad[0], "unknown option", "give KEY=VALUE overrides, and -m for a sweep")
+    if not multirun:
+        run_residual(flights, vehicle, out, overrides, force=force)
+        return
+    from ..outputs import check_out_dir
+
+    check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=(SWEEP_CSV, "multirun.yaml"))
+    if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
+        # the filter the windows start from is evaluate.filter's, as in a single run (compose_stage)
+        from ..rollout import EvaluateNode
+
+        given = [o.split("=", 1)[1] for o in overrides if o.split("=")[0].lstrip("+~") == "evaluate.filter"]
+        if given and "," in given[-1]:
+            raise QrInputError("evaluate.filter", "a sweep over the filter is given as evaluate.filter",
+                               "sweep it as filter=auto,smoother")
+        overrides = [*overrides, f"filter={given[-1] if given else EvaluateNode().filter}"]
+    given = ["learn=residual", f"learn.flights=[{','.join(_quoted(f) for f in flights)}]",
+             f"learn.vehicle={_quoted(vehicle)}", f"learn.out={_quoted(out)}", f"learn.force={str(force).lower()}",
+             f"hydra.sweep.dir={_quoted(out)}", "hydra.sweep.subdir='job${hydra.job.num}'"]
+    argv, sys.argv = sys.argv, ["qr learn residual", "-m", *given, *overrides]
+    try:
+        from ..config import hydra_app
+
+        hydra_app("learn residual", _job)
+    finally:
+        sys.argv = argv
+
+
+def _job(cfg) -> float:
+    """One job of a sweep (Hydra calls it with the composed tree)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    hc = HydraConfig.get()
+    learn = cfg.learn
+    out = Path(learn.out)
+    name = f"job{int(hc.job.num)}"
+    parent = out / PARENT_FILE
+    parent_id = parent.read_text().strip() if parent.exists() else None
+    doc = run_residual(list(learn.flights), learn.vehicle, out / name, force=bool(learn.force), cfg=cfg,
+                       run_name=name, parent_id=parent_id)
+    return float(min(e["val_loss"] for e in doc["loss_per_epoch"]))
+
+
+def collect(out, since: float = 0.0) -> "pd.DataFrame":  # noqa: F821
+    """One row per job of a sweep (its training.json written after ``since``, a time stamp): settings,
+    epochs, best validation loss and ratios at H."""
+    import json
+
+    import pandas as pd
+
+    from ..rollout import QUANTITIES
+
+    rows = []
+    for p in sorted(Path(out).glob("job*/training.json"), key=lambda p: int(p.parent.name[3:])):
+        if p.stat().st_mtime < since:  # a job of an earlier sweep into the same folder
+            continue
+        d = json.loads(p.read_text())
+        row = {"job": p.parent.name, **{k: v for k, v in d["config"]["learn"].items()
+                                       if not isinstance(v, (list, dict))},
+               "signal_weights": d["loss"]["signal_weights"], "inputs": ",".join(d["network"]["inputs"]),
+               "epochs": d["epochs"]["run"], "best_epoch": d["epochs"]["best"],
+               "val_loss": min([d["initial_loss"]["val_loss"]] + [e["val_loss"] for e in d["loss_per_epoch"]]),
+               "train_s": d["wall_s"]["training"]}
+        for m in ("vehicle", "hybrid"):
+            for q in QUANTITIES:
+                row[f"{m}.{q}_ratio"] = d["validation"]["ratio_to_rate_frozen_at_H"][m][q]
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+try:
+    from hydra.experimental.callback import Callback
+except ImportError:  # pragma: no cover
+    Callback = object
+
+
+def _is_mine(config) -> bool:
+    try:
+        return config.hydra.job.name == JOB
+    except Exception:
+        return False
+
+
+class ResidualSweep(Callback):
+    """A ``qr learn residual -m`` multirun: one MLflow parent run, ``OUTDIR/sweep.csv`` at the end (the job
+    with the lowest validation loss tagged; never chosen on held-out flights: none are read)."""
+
+    def __init__(self):
+        self._cm = self._run = None
+        self._started = 0.0
+
+    def __getstate__(self):
+        return {}
+
+    def __setstate__(self, state):
+        self.__init__()
+
+    def on_multirun_start(self, config, **kwargs) -> None:
+        if not _is_mine(config):
+            return
+        import atexit
+
+        from .. import tracking
+
+        self._started = time.time()
+        out = Path(config.learn.out)
+        out.mkdir(parents=True, exist_ok=True)
+        params = {"sweep": f"residual {out.name}", "overrides": " ".join(config.hydra.overrides.task)}
+        self._cm = tracking.run("learn", params["sweep"], config=params,
+                                tags={"qr.sweep": params["sweep"], "qr.parent": "true", "qr.kind": "residual"})
+        self._run = self._cm.__enter__()
+        (out / PARENT_FILE).write_text(self._run.id + "\n")
+        atexit.register(self._close, RuntimeError("a job of the sweep failed"))
+
+    def on_multirun_end(self, config, **kwargs) -> None:
+        if self._cm is None:
+            return
+        from ..atomic import _write_marker, atomic_path
+
+        out = Path(config.learn.out)
+        runs = collect(out, self._started)
+        with atomic_path(out / SWEEP_CSV) as tmp:
+            runs.to_csv(tmp, index=False)
+        # a qr output (Hydra's multirun.yaml too): a later sweep may replace them
+        _write_marker(out, [SWEEP_CSV] + (["multirun.yaml"] if (out / "multirun.yaml").exists() else []),
+                      "qr learn residual -m")
+        if len(runs):
+            best = runs.loc[runs["val_loss"].idxmin()]
+            self._run.tags({"qr.best_job": best["job"]})
+            self._run.metrics({"jobs": len(runs), "best_val_loss": best["val_loss"]})
+        self._run.artifact(out / SWEEP_CSV)
+        (out / PARENT_FILE).unlink(missing_ok=True)
+        self._close(None)
+
+    def _close(self, exc) -> None:
+        if self._cm is None:
+            return
+        cm, self._cm = self._cm, None
+        if exc is None:
+            cm.__exit__(None, None, None)
+        else:
+            try:
+                cm.__exit__(type(exc), exc, None)
+            except type(exc):
+                pass

@@ -1,0 +1,11 @@
+"""Snakemake rule `learn_residual`: a residual trained through the rollout on a set's training flights."""
+import sys
+from pathlib import Path
+
+from qr.stages.learn_residual import train_held_out
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    train_held_out(snakemake.input.flights, Path(snakemake.input.diagnosis) / "extended_vehicle.yaml",
+                   snakemake.output[0], snakemake.params.overrides, reports=snakemake.input.nis,
+                   estimates=snakemake.input.crossfit, track=True, log=lambda m: print(m, file=log, flush=True))
