@@ -14,7 +14,8 @@ vehicle's unknown effects:
 - **gyro** (where logged): the body rate the attitude implies equals the gyro up to a bias.  Readings:
   an FRD gyro, a gyro in degrees per second.
 - **rotor layout**: the roll, pitch and yaw torque of the rotor map moves with the torque the attitude
-  needs, ``J ω̇ + ω × J ω``, on every axis.  Readings: every other numbering of the rotors, the yaw
+  needs, ``J ω̇ + ω × J ω``, on every axis (a partial correlation: the aerodynamic torques a rotor map
+  leaves out projected out first).  Readings: every other numbering of the rotors, the yaw
   signs reversed.
 
 A reading that explains the log far better than the log as written (the fit's residual ``RATIO``
@@ -323,8 +324,10 @@ def check_gyro(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
 
 # ---- rotor layout -----------------------------------------------------------------------------------------
 
-def _torque_pairs(pieces: list[pd.DataFrame], vehicle) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per piece: (u² per rotor (N, n), the torque the attitude needs (N, 3)), both smoothed alike."""
+def _torque_pairs(pieces: list[pd.DataFrame], vehicle) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per piece: u² per rotor (N, n), the torque the attitude needs (N, 3), and per torque axis the
+    torques a rotor map leaves out (N, 3, 4): a constant, the body rate's damping, the cross-axis body
+    velocity's blade flapping, the thrust's CG-offset lever; all smoothed alike."""
     out = []
     J = np.asarray(vehicle.inertia, float)
     for p in pieces:
@@ -332,59 +335,76 @@ def _torque_pairs(pieces: list[pd.DataFrame], vehicle) -> list[tuple[np.ndarray,
         w, wd = _attitude_rates(p, step)
         need = wd * J + np.cross(w, w * J)
         u2 = _smooth(p[ROTORS].to_numpy(float) ** 2, step)
+        R = quat_to_rot(_unit(p[QUATERNION].to_numpy(float)))
+        v_b = np.einsum("nji,nj->ni", R, _smooth(p[POSITION].to_numpy(float), step, 1))
+        T = u2.sum(axis=1)
+        one = np.ones(len(T))
+        z = np.stack([np.column_stack([one, w[:, 0], v_b[:, 1], T]), np.column_stack([one, w[:, 1], v_b[:, 0], T]),
+                      np.column_stack([one, w[:, 2], one * 0, one * 0])], axis=1)
         n = _window(step) // 2
-        u2, need = u2[n:-n], need[n:-n]
-        ok = np.isfinite(u2).all(axis=1) & np.isfinite(need).all(axis=1)
-        out.append((u2[ok], need[ok]))
+        u2, need, z = u2[n:-n], need[n:-n], z[n:-n]
+        ok = np.isfinite(u2).all(axis=1) & np.isfinite(need).all(axis=1) & np.isfinite(z).all(axis=(1, 2))
+        out.append((u2[ok], need[ok], z[ok]))
     return out
 
 
-def _correlations(pairs, B: np.ndarray, lags) -> np.ndarray:
-    """Correlation of each torque axis of rotor map ``B`` (4 x n) with the needed torque, the rotor
-    stream shifted by each of ``lags`` (samples; the best lag on the summed correlation): a rotor stream
-    stamped late is a clock's error (qr ingest estimates it), not a numbering."""
-    best = None
-    for lag in lags:
-        A, N = [], []
-        for u2, need in pairs:
-            m = len(u2) - abs(lag)
-            if m <= 0:
-                continue
-            A.append(u2[max(lag, 0):max(lag, 0) + m]), N.append(need[max(-lag, 0):max(-lag, 0) + m])
-        tq, need = np.vstack(A) @ B[1:].T, np.vstack(N)
-        a, b = tq - tq.mean(axis=0), need - need.mean(axis=0)
-        den = np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
-        c = np.divide(np.sum(a * b, axis=0), den, out=np.zeros(3), where=den > 0)
-        if best is None or c.sum() > best.sum():
-            best = c
-    return best
+def _partial(pairs, lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """With the rotor stream ``lag`` samples late: per torque axis, u² (N, n) and the needed torque (N,), each
+    with the left-out torques (``_torque_pairs``) projected out: what a rotor numbering must explain."""
+    U, N, Z = [], [], []
+    for u2, need, z in pairs:
+        m = len(u2) - abs(lag)
+        if m > 0:
+            a, b = max(lag, 0), max(-lag, 0)
+            U.append(u2[a:a + m]), N.append(need[b:b + m]), Z.append(z[b:b + m])
+    u2, need, z = np.vstack(U), np.vstack(N), np.concatenate(Z)
+    us, ns = [], []
+    for k in range(3):
+        Q = np.linalg.qr(z[:, k][:, np.any(z[:, k] != 0, axis=0)])[0]
+        us.append(u2 - Q @ (Q.T @ u2))
+        ns.append(need[:, k] - Q @ (Q.T @ need[:, k]))
+    return np.stack(us), np.stack(ns)  # (3, N, n), (3, N)
+
+
+def _correlation(us: np.ndarray, ns: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Partial correlation of each torque axis of rotor map ``B`` (4 x n) with the needed torque."""
+    tq = np.einsum("knr,kr->kn", us, B[1:])
+    den = np.sqrt(np.sum(tq * tq, axis=1) * np.sum(ns * ns, axis=1))
+    return np.divide(np.sum(tq * ns, axis=1), den, out=np.zeros(3), where=den > 0)
 
 
 def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
+    """Every numbering of the rotors and both yaw conventions, each at its best lag of the rotor stream
+    within ``MAX_LAG_S`` (a stamp offset is a clock's error, qr ingest estimates it, not a numbering); the
+    correlation is partial: in closed loop the rotors cancel aerodynamic torques (flapping, damping), which
+    can hide the numbering's own correlation (a flapping RotorPy flight: roll -0.25 without them)."""
     if sum(len(p) for p in pieces) < MIN_ROWS:
         return CheckResult("rotor_layout", True, "too few airborne samples to check the rotor layout")
     pairs = _torque_pairs(pieces, vehicle)
     step = float(pieces[0]["t"].iloc[1] - pieces[0]["t"].iloc[0])
-    rows = sum(len(u) for u, _ in pairs)
+    rows = sum(len(u) for u, _, _ in pairs)
     se = 1 / np.sqrt(max(rows / _window(step) - 3, 1.0))  # Fisher: a window's samples are one
     reach = int(round(MAX_LAG_S / step))
-    lags = range(-reach, reach + 1, max(1, reach // 6))
     B = vehicle.rotors.matrix
-    written = _correlations(pairs, B, lags)
-    measured = ("the rotor torque's correlation with the torque the attitude needs is "
-                + ", ".join(f"{c:.2f}" for c in written) + f" in roll, pitch, yaw (s.e. {se:.2f})")
     n = B.shape[1]
-    best = None
-    for order in itertools.permutations(range(n)):
-        for yaw in (1.0, -1.0):
-            if order == tuple(range(n)) and yaw == 1.0:
-                continue
-            Bp = B[:, list(order)].copy()
-            Bp[3] *= yaw
-            c = _correlations(pairs, Bp, lags)
-            if best is None or c.sum() > best[0].sum():
-                best = (c, order, yaw)
-    c, order, yaw = best
+    candidates = [(order, yaw) for order in itertools.permutations(range(n)) for yaw in (1.0, -1.0)]
+    maps = []
+    for order, yaw in candidates:
+        Bp = B[:, list(order)].copy()
+        Bp[3] *= yaw
+        maps.append(Bp)
+    best = [None] * len(candidates)  # per candidate: its correlations at its best lag
+    for lag in range(-reach, reach + 1, max(1, reach // 6)):
+        us, ns = _partial(pairs, lag)
+        for i, Bp in enumerate(maps):
+            c = _correlation(us, ns, Bp)
+            if best[i] is None or c.sum() > best[i].sum():
+                best[i] = c
+    written = best[0]
+    measured = ("the rotor torque's partial correlation with the torque the attitude needs is "
+                + ", ".join(f"{c:.2f}" for c in written) + f" in roll, pitch, yaw (s.e. {se:.2f})")
+    i = max(range(1, len(candidates)), key=lambda j: best[j].sum())
+    (order, yaw), c = candidates[i], best[i]
     if c.sum() - written.sum() > Z_LAYOUT * se * np.sqrt(3):
         if order == tuple(range(n)):
             mistake = "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"

@@ -10,7 +10,10 @@ rule export:
     input:
         diagnosis=expand(rules.diagnose_set.output[0], set=EXPORT_SET),
     output:
-        report(directory("results/export/{target}"), patterns=["{file}"], caption="../report/export.rst",
+        # files only (PX4's model folder holds its files a level down): a folder cannot be embedded
+        report(directory("results/export/{target}"),
+               patterns=["{file}.md", "{file}.py", "{file}.xml", "{file}.params", "{model}/model.{ext}"],
+               caption="../report/export.rst",
                category="6. Exports", subcategory="{target}"),
     wildcard_constraints:
         target="|".join(EXPORT_TARGETS),
