@@ -163,9 +163,10 @@ def _pieces(df: pd.DataFrame, vehicle) -> list[pd.DataFrame]:
             cols["t"] = grid
             out.append(pd.DataFrame(cols))
     if sum(len(p) for p in out) > MAX_ROWS:
-        short = [q for p in out for q in np.array_split(p, max(1, len(p) // STRETCH))]
+        short = [p.iloc[idx].reset_index(drop=True) for p in out
+                 for idx in np.array_split(np.arange(len(p)), max(1, len(p) // STRETCH))]
         keep = np.unique(np.linspace(0, len(short) - 1, MAX_ROWS // STRETCH).round().astype(int))
-        out = [short[i].reset_index(drop=True) for i in keep]
+        out = [short[i] for i in keep]
     return out
 
 
@@ -366,11 +367,16 @@ def _partial(pairs, lag: int) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(us), np.stack(ns)  # (3, N, n), (3, N)
 
 
-def _correlation(us: np.ndarray, ns: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """Partial correlation of each torque axis of rotor map ``B`` (4 x n) with the needed torque."""
-    tq = np.einsum("knr,kr->kn", us, B[1:])
-    den = np.sqrt(np.sum(tq * tq, axis=1) * np.sum(ns * ns, axis=1))
-    return np.divide(np.sum(tq * ns, axis=1), den, out=np.zeros(3), where=den > 0)
+def _correlations(us: np.ndarray, ns: np.ndarray, maps: np.ndarray) -> np.ndarray:
+    """Partial correlation (c, 3) of each torque axis of each rotor map ``maps`` (c, 4, n) with the needed
+    torque, from the axes' small Gram matrices (a rotor map's torque is linear in u²)."""
+    C = np.einsum("knr,kns->krs", us, us)
+    d = np.einsum("knr,kn->kr", us, ns)
+    e = np.einsum("kn,kn->k", ns, ns)
+    b = maps[:, 1:, :]  # (c, 3, n)
+    num = np.einsum("ckr,kr->ck", b, d)
+    den = np.sqrt(np.einsum("ckr,krs,cks->ck", b, C, b) * e)
+    return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
 
 
 def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
@@ -388,18 +394,11 @@ def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
     B = vehicle.rotors.matrix
     n = B.shape[1]
     candidates = [(order, yaw) for order in itertools.permutations(range(n)) for yaw in (1.0, -1.0)]
-    maps = []
-    for order, yaw in candidates:
-        Bp = B[:, list(order)].copy()
-        Bp[3] *= yaw
-        maps.append(Bp)
-    best = [None] * len(candidates)  # per candidate: its correlations at its best lag
+    maps = np.stack([B[:, list(order)] * np.array([1.0, 1.0, 1.0, yaw])[:, None] for order, yaw in candidates])
+    best = None  # per candidate: its correlations at its best lag
     for lag in range(-reach, reach + 1, max(1, reach // 6)):
-        us, ns = _partial(pairs, lag)
-        for i, Bp in enumerate(maps):
-            c = _correlation(us, ns, Bp)
-            if best[i] is None or c.sum() > best[i].sum():
-                best[i] = c
+        c = _correlations(*_partial(pairs, lag), maps)
+        best = c if best is None else np.where((c.sum(axis=1) > best.sum(axis=1))[:, None], c, best)
     written = best[0]
     measured = ("the rotor torque's partial correlation with the torque the attitude needs is "
                 + ", ".join(f"{c:.2f}" for c in written) + f" in roll, pitch, yaw (s.e. {se:.2f})")
