@@ -98,7 +98,7 @@ def test_output_is_strict_json_and_qrs_marker_lists_every_file(diagnosed):
 
 
 def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkeypatch):
-    import qr.diagnose.crossfit
+    import qr.estimation.crossfit
     import qr.stages.diagnose
 
     path = tmp_path / "short.csv"
@@ -120,7 +120,7 @@ def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkey
         raise RuntimeError("reached the filter")
 
     monkeypatch.setattr(qr.stages.diagnose, "_compose", record)
-    monkeypatch.setattr(qr.diagnose.crossfit, "prepare_flight", stop)
+    monkeypatch.setattr(qr.estimation.crossfit, "prepare_flight", stop)
     with pytest.raises(RuntimeError, match="reached the filter"):
         run_cli(["diagnose", path, "--vehicle", HB, "--out", out, suggested[1], "filter=auto"], capsys)
     assert seen["cfg"].diagnose.block_s == float(suggested[1].split("=")[1])

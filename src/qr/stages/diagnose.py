@@ -2,7 +2,7 @@
 
 Contract: docs/spec/diagnosis.md.  ``run_diagnosis`` reads the flights
 and the vehicle, takes each segment's estimates from the filter stage's cross-fit file or filters it
-(the same function, :func:`qr.diagnose.crossfit.prepare_flight`), diagnoses (:mod:`qr.diagnose.core`)
+(:func:`qr.estimation.crossfit.diagnosis_estimates`), diagnoses (:mod:`qr.diagnose.core`)
 and writes ``OUTDIR/diagnosis.json``, ``report.md``, ``figures/`` and ``extended_vehicle.yaml``, all at
 once (built in a temporary folder, then moved into place) and nothing anywhere else.  Where it writes
 is checked first (:func:`qr.outputs.check_out_dir`): qr never replaces a file it did not write.
@@ -78,7 +78,7 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     from ..flight import hover_ratio
     from ..segments import flight_segments
     from ..diagnose.coefficients import coefficient_checks
-    from ..diagnose.crossfit import Estimates, prepare_flight
+    from ..estimation.crossfit import diagnosis_estimates
     from ..torque_remainder import FEATURES
     from ..diagnose.core import DiagnoseConfig, diagnose, extended_effects
     from ..diagnose.report import anatomy_figure, make_figures, note_nulls, to_json, write_report
@@ -99,28 +99,11 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
             m, vehicle, f, dcfg.skip_checks, "diagnose.skip_checks=[{name}] at the end of the command")]})
         _check_length(f, fs, need, dcfg, blocks)
         split.append(fs)
-    work = []  # (flight, segment start, state table, cross-fitting pair, measured rows)
-    for i, fs in enumerate(split):
-        name = Path(flights[i]).name
-        _say_segments(say, name, fs)
-        report = reports[i] if reports else None
-        stored = Estimates(estimates[i], to_dict(cfg.filter), report, vehicle) if estimates and report else None
-        # the longest segment first: a tuning filter (filter=auto) is tuned there, once per flight
-        for seg in sorted(fs.used, key=lambda s: s.window[0] - s.window[1]):
-            got = stored.get(seg.window[0]) if stored else None
-            if got:
-                st, pair = got
-                source = "read from the filter stage"
-            else:
-                st, pair, report = prepare_flight(seg.rows, vehicle, to_dict(cfg.filter), report)
-                source = f"filter={cfg.filter.get('name', '?')}"
-            say(f"estimates of {name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
-                f"{source}")
-            for table in (st, *pair):
-                table.attrs["flight"] = i  # qr.diagnose.core.prepare: one flight, split once
-            work.append((i, seg.window[0], st, pair, seg.rows))
-    work.sort(key=lambda w: w[:2])  # flights in order, each one's segments in time order
-    _, _, states, pairs, pieces = (list(x) for x in zip(*work))
+    for f, fs in zip(flights, split):
+        _say_segments(say, Path(f).name, fs)
+    work = diagnosis_estimates([fs.used for fs in split], [Path(f).name for f in flights], vehicle,
+                               to_dict(cfg.filter), reports, estimates, say)
+    states, pairs, pieces = [e.states for e in work], [e.halves for e in work], [e.rows for e in work]
     say("identifying effects")
 
     def draw_anatomy(prep):  # it needs only the nominal residuals: drawn while the selection runs
