@@ -22,7 +22,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..config import to_dict
 from ..estimation.crossfit import SegmentEstimate
+from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
 from ..rollout import EvaluateConfig
 from ..vehicle import Vehicle
@@ -47,6 +49,14 @@ class Settings:
     seed: int = 0
     given: dict = field(default_factory=dict)  # the config group ``diagnose`` as composed
     filter: dict = field(default_factory=dict)  # the filter settings the estimates were made with
+
+    @classmethod
+    def of(cls, tree) -> Settings:
+        """The settings of a composed config tree (:func:`qr.config.compose_stage`), every one checked."""
+        given, filter_cfg = to_dict(tree.diagnose), to_dict(tree.filter)
+        resolve_filter(filter_cfg)
+        return cls(DiagnoseConfig.from_dict(given), EvaluateConfig.from_dict(to_dict(tree.evaluate)), int(tree.seed),
+                   given, filter_cfg)
 
 
 @dataclass(frozen=True)

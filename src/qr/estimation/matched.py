@@ -19,6 +19,7 @@ import pandas as pd
 
 from . import position_kf
 from .settings import resolve
+from .smoother import equilibration
 from .tuning import ORDER
 from ..flight import ROTORS
 from ..parallel import thread_map
@@ -30,7 +31,6 @@ def _smooth(t, y, q, r, discretisation):
     (order 4, the same as the position filter and the attitude ESKF's per-axis chain).  Columns with
     the same dropouts share one covariance recursion (one compiled pass for all four rotors)."""
     from . import fast
-    from .smoother import equilibration
 
     out, rate = np.full_like(y, np.nan), np.full_like(y, np.nan)
     valid = np.isfinite(y)

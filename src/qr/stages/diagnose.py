@@ -22,7 +22,9 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from ..atomic import atomic_dir
+from ..atomic import atomic_dir, write_json
+from ..outputs import check_out_dir
+from ..parallel import blas_one_thread
 from ..report.tables import write_table
 from ..vehicle import load_vehicle, save_vehicle, vehicle_from_dict
 
@@ -45,8 +47,6 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
     ``reports`` / ``estimates``: per flight, the filter stage's report and cross-fit file; a segment
     found there with the same filter settings is read, not filtered again (the same numbers)."""
-    from ..parallel import blas_one_thread
-
     background = []  # figures drawn by a child process: stopped and removed however the run ends
     try:
         with blas_one_thread():  # qr's own threads use the cores
@@ -59,28 +59,11 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
 
 def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures, force, estimates,
                    background):
-    from ..outputs import check_out_dir
-
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
-    from ..flight import read_flight
-
-    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
-    vehicle_path, vehicle = vehicle, load_vehicle(vehicle)
-    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
-    measured = [read_flight(f) for f in flights]
-    from ..diagnose.diagnosis import run
-    from ..diagnose.report import anatomy_figure
-    from ..report.background import BackgroundFigure
-
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
-    settings, read, work = _read(flights, vehicle, measured, overrides, reports, estimates, say)
-    say("identifying effects")
-
-    def draw_anatomy(prep):  # it needs only the nominal residuals: drawn while the selection runs
-        background.append(BackgroundFigure(lambda path: anatomy_figure(prep, vehicle, path)))
-
-    diagnosis = run(work, read, vehicle, settings, vehicle_path, say, draw_anatomy if figures else None)
-    doc = _write(out, diagnosis, vehicle, figures, background[0] if background else None, force)
+    settings, read, work, nominal = _read(flights, vehicle, overrides, reports, estimates, say)
+    diagnosis = _run(work, read, nominal, vehicle, settings, say, background if figures else None)
+    doc = _write(out, diagnosis, nominal, figures, background[0] if background else None, force)
     if track if track is not None else bool(settings.given.get("track", False)):
         track_diagnosis(out.name, doc, flights, out, {"nominal_loss": diagnosis.held_out.nominal_loss,
                                                       "extended_loss": diagnosis.held_out.extended_loss})
@@ -88,37 +71,43 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
     return (doc, diagnosis) if return_result else doc
 
 
-def _read(flights, vehicle, measured, overrides, reports, estimates, say):
-    """The settings, the flights checked (conventions, segments, length) and every used segment's
-    estimates, read from the filter stage's cross-fit files or filtered."""
+def _read(flights, vehicle_file, overrides, reports, estimates, say):
+    """(settings, the flights checked, every used segment's estimates, the vehicle): the estimates read
+    from the filter stage's cross-fit files or filtered."""
+    from ..flight import read_flight
+
+    # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
+    vehicle = load_vehicle(vehicle_file)
+    # validated without the vehicle: its unit check needs the ground rows known (qr.airborne)
+    measured = [read_flight(f) for f in flights]
+    from ..diagnose.diagnosis import Settings
     from ..diagnose.flights import check_flights
     from ..estimation.crossfit import diagnosis_estimates
 
-    settings = _settings(_compose(overrides))
+    settings = Settings.of(_compose(overrides))
     read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say)
     work = diagnosis_estimates([fs.used for fs in read.split], [Path(f).name for f in flights], vehicle,
                                settings.filter, reports, estimates, say)
-    return settings, read, work
+    return settings, read, work, vehicle
 
 
-def _settings(tree):
-    """A diagnosis's settings from the composed config tree, every one checked before any work."""
-    from ..config import to_dict
-    from ..diagnose.diagnosis import Settings
-    from ..diagnose.settings import DiagnoseConfig
-    from ..estimation.settings import resolve as resolve_filter
-    from ..rollout import EvaluateConfig
+def _run(work, read, vehicle, vehicle_file, settings, say, background: list | None):
+    """:func:`qr.diagnose.run`; with ``background``, the residual anatomy figure is drawn by a child
+    process while the fit runs (it needs only the nominal residuals)."""
+    from ..diagnose.diagnosis import run
+    from ..diagnose.report import anatomy_figure
+    from ..report.background import BackgroundFigure
 
-    given, filter_cfg = to_dict(tree.diagnose), to_dict(tree.filter)
-    resolve_filter(filter_cfg)
-    return Settings(DiagnoseConfig.from_dict(given), EvaluateConfig.from_dict(to_dict(tree.evaluate)), int(tree.seed),
-                    given, filter_cfg)
+    def draw_anatomy(prep):
+        background.append(BackgroundFigure(lambda path: anatomy_figure(prep, vehicle, path)))
+
+    say("identifying effects")
+    return run(work, read, vehicle, settings, vehicle_file, say, draw_anatomy if background is not None else None)
 
 
 def _write(out, diagnosis, vehicle, figures: bool, anatomy, force: bool) -> dict:
     """``out``: diagnosis.json, report.md (and its figures), extended_vehicle.yaml, all at once; the
     document written."""
-    from ..atomic import write_json
     from ..diagnose.document import document
     from ..diagnose.report import make_figures, write_report
 
