@@ -141,21 +141,32 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     say("replay")
     replay = replay_all(states, rows, vehicle, effects, cfg.horizon_s, final.labels.full.windows)
     extended = vehicle.with_changes(effects=vehicle.effects + effects)
-    hybrid, torque_rem = None, None
-    if cfg.torque_remainder_ridge > 0:
-        say("fitting the learned torque remainder")
-        torque_rem = fit_torque_remainder(final, vehicle, cfg.torque_remainder_ridge)
-        hybrid = extended.with_changes(torque_remainder=torque_rem.in_vehicle(vehicle, (
-            f"learned on the training part of {', '.join(Path(f).name for f in flights.names)} (ridge "
-            f"{cfg.torque_remainder_ridge:g}): not a physical effect")))
+    torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say)
     rollout, beyond, accelerometer = _after_the_fit(states, rows, vehicle, final, held_out, effects, hybrid,
                                                     settings, say)
-    statements, unresolved = coefficient_checks(
-        [e.stated() for e in final.effects], vehicle, vehicle_file or vehicle.name,
-        evidence(final.stats, final.named, final.fixed), hover_ratio(pd.concat(flights.measured, ignore_index=True),
-                                                                     vehicle))
+    statements, unresolved = _vehicle_file(final, vehicle, vehicle_file or vehicle.name, flights)
     return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
                      beyond, accelerometer, statements, unresolved, hybrid or extended, torque_rem)
+
+
+def _torque_remainder(final: Fit, extended: Vehicle, vehicle, flights: Flights, ridge: float,
+                      say) -> tuple[TorqueRemainder | None, Vehicle | None]:
+    """The learned torque remainder (``ridge`` > 0) and the extended vehicle carrying it (the hybrid)."""
+    if ridge <= 0:
+        return None, None
+    say("fitting the learned torque remainder")
+    rem = fit_torque_remainder(final, vehicle, ridge)
+    note = (f"learned on the training part of {', '.join(Path(f).name for f in flights.names)} (ridge {ridge:g}): "
+            "not a physical effect")
+    return rem, extended.with_changes(torque_remainder=rem.in_vehicle(vehicle, note))
+
+
+def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[list[dict], list[dict]]:
+    """Statements about the vehicle file's own numbers (:func:`coefficient_checks`), from the parameters
+    as diagnosis.json states them and the log's hover balance."""
+    hover = hover_ratio(pd.concat(flights.measured, ignore_index=True), vehicle)
+    return coefficient_checks([e.stated() for e in final.effects], vehicle, vehicle_file,
+                              evidence(final.stats, final.named, final.fixed), hover)
 
 
 def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,

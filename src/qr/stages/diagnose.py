@@ -57,13 +57,13 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
             b.close()
 
 
-def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, reports, figures, force, estimates,
-                   background):
-    out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+def _run_diagnosis(flights, vehicle_file, out, overrides, track, log, return_result, reports, figures, force,
+                   estimates, background):
+    out = check_out_dir(out, inputs=[*flights, vehicle_file], force=force, expected=OUTPUTS)
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
-    settings, read, work, nominal = _read(flights, vehicle, overrides, reports, estimates, say)
-    diagnosis = _run(work, read, nominal, vehicle, settings, say, background if figures else None)
-    doc = _write(out, diagnosis, nominal, figures, background[0] if background else None, force)
+    settings, read, work, vehicle = _read(flights, vehicle_file, overrides, reports, estimates, say)
+    diagnosis = _run(work, read, vehicle, vehicle_file, settings, say, background if figures else None)
+    doc = _write(out, diagnosis, vehicle, figures, background[0] if background else None, force)
     if track if track is not None else bool(settings.given.get("track", False)):
         track_diagnosis(out.name, doc, flights, out, {"nominal_loss": diagnosis.held_out.nominal_loss,
                                                       "extended_loss": diagnosis.held_out.extended_loss})
