@@ -138,7 +138,12 @@ def _key(override: str) -> str:
     return override.split("=")[0].lstrip("+~")
 
 
-def _stage_filter(stage: str, overrides: list[str]) -> str:
+def selects_filter(overrides) -> bool:
+    """Whether ``overrides`` select the config group ``filter`` themselves (``filter=NAME``)."""
+    return any(_key(o) == "filter" for o in overrides)
+
+
+def stage_filter(stage: str, overrides: list[str]) -> str:
     """The filter ``<stage>.filter`` names: the last override of it, else its structured default."""
     given = [o.split("=", 1)[1] for o in overrides if "=" in o and _key(o) == f"{stage}.filter"]
     return given[-1] if given else schemas()[stage].filter
@@ -151,10 +156,10 @@ def compose_stage(overrides, stage: str, example: str):
 
     overrides = list(overrides)
     try:
-        if any(_key(o) == "filter" for o in overrides):
+        if selects_filter(overrides):
             cfg = compose(overrides)
         else:  # composed once (Hydra takes ~0.5 s), with the filter the stage's key names ...
-            named = _stage_filter(stage, overrides)
+            named = stage_filter(stage, overrides)
             cfg = compose(overrides + [f"filter={named}"])
             if cfg[stage].filter != named:  # ... again where a named experiment chose another
                 cfg = compose(overrides + [f"filter={cfg[stage].filter}"])

@@ -49,7 +49,7 @@ def residuals(s, vehicle) -> np.ndarray:
     """``[f_a, τ_a]`` (N, 6) from a :class:`qr.effects.Signals`.
 
     Thrust and torques come from the signals' force-row and torque-row rotor
-    speeds (the same as ``u²`` unless matched ones are given; see qr.diagnose.matched).
+    speeds (the same as ``u²`` unless matched ones are given; see qr.estimation.matched).
     """
     from .effects import wrench
 

@@ -44,7 +44,7 @@ class Signals:
     p: np.ndarray  # (N, 3) tracked point, world
     # Optional squared rotor speeds smoothed like the position (force rows) and the attitude
     # (torque rows) estimates, and their rates: labels and designs built from them compare like
-    # with like (see qr.diagnose.matched).  None: use u² and 2 u u̇.
+    # with like (see qr.estimation.matched).  None: use u² and 2 u u̇.
     u2f: np.ndarray | None = None
     u2f_dot: np.ndarray | None = None
     u2t: np.ndarray | None = None

@@ -27,6 +27,7 @@ import pandas as pd
 
 from .allowed import check_fields, check_known, setting
 from .conventions import CHECKS
+from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
 from .sim.plant import N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
@@ -268,7 +269,7 @@ class EvaluateConfig:
 class EvaluateNode(EvaluateConfig):
     """The config group ``evaluate`` (structured; ``conf/evaluate/default.yaml`` selects it)."""
 
-    filter: str = "auto"  # the estimate the windows start from (as qr diagnose's)
+    filter: str = DIAGNOSIS_FILTER  # the estimate the windows start from (as qr diagnose's)
 
 
 def pieces(states: pd.DataFrame, rows: pd.DataFrame, trim_s: float) -> tuple[pd.DataFrame, pd.DataFrame, np.ndarray]:

@@ -59,7 +59,7 @@ def users_folder(path: Path, flight: bool = False) -> Path:
 @pytest.fixture
 def no_work(monkeypatch):
     """Reading or filtering a flight, or simulating one, fails the test: refusals come first."""
-    import qr.diagnose.crossfit
+    import qr.estimation.crossfit
     import qr.flight
     import qr.sim.synth
 
@@ -67,7 +67,7 @@ def no_work(monkeypatch):
         raise AssertionError("work started before the output location was checked")
 
     monkeypatch.setattr(qr.flight, "read_flight", work)
-    monkeypatch.setattr(qr.diagnose.crossfit, "prepare_flight", work)
+    monkeypatch.setattr(qr.estimation.crossfit, "prepare_flight", work)
     monkeypatch.setattr(qr.sim.synth, "synthesize", work)
 
 

@@ -238,7 +238,7 @@ def test_a_time_gap_splits_the_flight_and_nothing_straddles_it(drag_flight):
     assert doc["time_gaps"] == [{"flight": str(d / "gap.csv"), "from": 19.99, "to": 22.0}]
     assert [s["window"] for s in doc["segments"]] == [[0.0, 19.99], [22.0, 40.0]]
     assert "no samples from 19.99 to 22.00 s" in (d / "gap" / "report.md").read_text()
-    prep = res["prep"]
+    prep = res.labels.full
     for i in np.unique(prep.flight):  # each filtered state table lies on one side of the gap
         ti = prep.t[prep.flight == i]
         assert ti.max() < 20 or ti.min() >= 22
@@ -249,7 +249,7 @@ def test_a_time_gap_splits_the_flight_and_nothing_straddles_it(drag_flight):
     assert prep.t[prep.train].min() >= 0.5 and prep.t[prep.test].max() <= 39.5  # trim_s at segment ends
     assert not ((prep.t > 19.49) & (prep.t < 22.5)).any()  # ... and at the gap's two sides
     for key in ("nominal", "extended"):  # no replay window runs across the gap
-        err = res["replay"][key]["errors"]
+        err = res.replay[key]["errors"]
         span = err.groupby("window")["t"].agg(["min", "max"])
         assert ((span["max"] < 20) | (span["min"] >= 22)).all()
     assert np.isfinite(doc["nominal"]["force_rmse"] + doc["extended"]["force_rmse"]).all()

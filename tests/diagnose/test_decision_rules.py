@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qr.diagnose.core import unsupported
+from qr.diagnose.held_out import unsupported
 from qr.identification.edge import EDGE, Margins, rank_key
 from qr.identification.normal_equations import BlockStats, Columns
 from qr.identification.selection import SelectionConfig, better, cancelling, choose_size

@@ -71,7 +71,7 @@ def _case(tmp_path, names, seed=7, noise=None, figures=False, duration=90):
     vehicle, effects = _synth(tmp_path, names, seed, noise, duration)
     doc, res = run_diagnosis([tmp_path / "s" / "flight.csv"], tmp_path / "s" / "vehicle.yaml", tmp_path / "d",
                              log=lambda m: None, return_result=True, figures=figures)
-    prep = res["prep"]
+    prep = res.labels.full
     floor = rms((prep.y - total_term(effects, prep.s, vehicle))[prep.test])
     return effects, doc, floor
 
@@ -127,7 +127,7 @@ def test_null_flights_name_nothing_and_sit_at_the_noise_floor(seed, level, tmp_p
     _, doc, res = _case_res(tmp_path, seed, NOISE_LEVELS[level])
     assert doc["effects"] == []
     assert doc["verdict"].startswith("Nothing named: the nominal model explains this flight up to noise")
-    assert 0.8 <= res["nominal_loss"] <= 1.25, res["nominal_loss"]
+    assert 0.8 <= res.held_out.nominal_loss <= 1.25, res.held_out.nominal_loss
 
 
 def _case_res(tmp_path, seed, noise):

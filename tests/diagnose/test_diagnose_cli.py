@@ -97,7 +97,7 @@ def test_every_setting_declares_its_range():
     """A new setting without its allowed values would go unchecked: each field declares them."""
     from dataclasses import fields
 
-    from qr.diagnose.core import DiagnoseConfig
+    from qr.diagnose.settings import DiagnoseConfig
     from qr.identification.selection import SelectionConfig
 
     for cls in (DiagnoseConfig, SelectionConfig):
@@ -107,7 +107,7 @@ def test_every_setting_declares_its_range():
 
 def test_defaults_file_is_within_the_ranges():
     from qr.config import compose, to_dict
-    from qr.diagnose.core import DiagnoseConfig
+    from qr.diagnose.settings import DiagnoseConfig
 
     cfg = DiagnoseConfig.from_dict(to_dict(compose([]).diagnose))
     assert cfg == DiagnoseConfig()  # conf/diagnose/default.yaml and the dataclass defaults agree

@@ -98,7 +98,7 @@ def test_output_is_strict_json_and_qrs_marker_lists_every_file(diagnosed):
 
 
 def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkeypatch):
-    import qr.diagnose.crossfit
+    import qr.estimation.crossfit
     import qr.stages.diagnose
 
     path = tmp_path / "short.csv"
@@ -120,7 +120,7 @@ def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkey
         raise RuntimeError("reached the filter")
 
     monkeypatch.setattr(qr.stages.diagnose, "_compose", record)
-    monkeypatch.setattr(qr.diagnose.crossfit, "prepare_flight", stop)
+    monkeypatch.setattr(qr.estimation.crossfit, "prepare_flight", stop)
     with pytest.raises(RuntimeError, match="reached the filter"):
         run_cli(["diagnose", path, "--vehicle", HB, "--out", out, suggested[1], "filter=auto"], capsys)
     assert seen["cfg"].diagnose.block_s == float(suggested[1].split("=")[1])
@@ -131,14 +131,14 @@ def test_anatomy_shares_only_what_is_above_the_noise_floor(monkeypatch):
     """Hand-made held-out residuals with noise sd 1 on every axis: axis 0 carries a signal (variance
     9, of which 8 above noise), axis 1 is exactly noise, axis 2 is 4 % above noise (within the
     floor's margin), axis 3 is 21 % above.  The candidate predicts [2, -2, ...] on axes 0 and 3."""
-    from qr.diagnose import core
+    from qr.diagnose import held_out
 
     y = np.array([[3, 1, 1.02, 1.1, 0, 0], [-3, -1, -1.02, -1.1, 0, 0]] * 2, dtype=float)
     pred = np.zeros_like(y)
     pred[:, 0] = pred[:, 3] = [2, -2, 2, -2]
-    monkeypatch.setattr(core, "fit", lambda stats, named: np.zeros(1))
-    monkeypatch.setattr(core, "predict", lambda s, vehicle, named, theta, force_only=(): pred)
-    shares = np.array(core.anatomy(None, None, y, np.ones_like(y), None, ["linear_drag"])["linear_drag"])
+    monkeypatch.setattr(held_out, "fit", lambda stats, named: np.zeros(1))
+    monkeypatch.setattr(held_out, "predict", lambda s, vehicle, named, theta, force_only=(): pred)
+    shares = np.array(held_out.anatomy(None, None, y, np.ones_like(y), None, ["linear_drag"])["linear_drag"])
     # axis 0: gain = 9 - mean((y - pred)^2) = 9 - 1 = 8 of 8 above noise: all of it
     assert shares[0] == pytest.approx(1.0)
     # axis 3: gain = 1.21 - 0.81 = 0.40 against 0.21 above noise
@@ -147,7 +147,8 @@ def test_anatomy_shares_only_what_is_above_the_noise_floor(monkeypatch):
 
 
 def test_report_shows_a_dash_at_the_noise_floor_and_json_says_null_and_why():
-    from qr.diagnose.report import _anatomy_table, note_nulls
+    from qr.diagnose.document import note_nulls
+    from qr.diagnose.report import _anatomy_table
 
     lines = _anatomy_table({"linear_drag": [0.8, math.nan, 0.001, -0.3, math.nan, math.nan],
                             "cg_offset": [0.1, math.nan, math.nan, 0.9, math.nan, math.nan]})

@@ -76,7 +76,7 @@ def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(hidden_ine
     tmp, vehicle = hidden_inertia
     doc, res = run_diagnosis([tmp / "s" / "flight.csv"], tmp / "s" / "vehicle.yaml", tmp / "d",
                              log=lambda m: None, return_result=True, figures=False)
-    fp = res["fitprep"]
+    fp = res.labels.cross
     slow = slow_torque(fp, vehicle, fp.y, 50, 5, 3.0, 0.05, 200, 0)
     roll, pitch, yaw = slow["axes"]
     for o in (roll, pitch):

@@ -183,7 +183,7 @@ def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
     would show)."""
     from types import SimpleNamespace
 
-    from qr.diagnose.core import summed_r2
+    from qr.diagnose.held_out import summed_r2
 
     n = 10
     prep = SimpleNamespace(test=np.ones(n, bool), flight=np.repeat([0, 1], 5))

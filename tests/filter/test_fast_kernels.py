@@ -57,7 +57,7 @@ def flight():
 def test_the_three_filters_give_the_same_digits_on_one_thread_and_on_two(flight):
     """The filters of a flight (and a flight's cross-fitting parts) run side by side on numba's threads;
     no number may depend on it."""
-    from qr.diagnose.crossfit import prepare_flight
+    from qr.estimation.crossfit import prepare_flight
 
     cfg = to_dict(compose(["filter=auto"]))["filter"]
     before = numba.get_num_threads()

@@ -173,7 +173,7 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     from qr.stages.learn import build_dataset
 
     table = build_dataset([xfit], ["gap"], vf, tmp_path / "dataset.parquet")
-    prep = res["prep"]
+    prep = res.labels.full
     test = np.flatnonzero(prep.test)
     rows = pd.DataFrame({"t": prep.t[test]}).merge(table.reset_index(), on="t", how="left")
     assert rows["index"].notna().all() and len(test) > 1000

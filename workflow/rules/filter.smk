@@ -1,9 +1,16 @@
 # Filter: every ingested flight -> state table + NIS report, a NIS summary (and one MLflow run per flight:
 # logged by filter_summary from one process, since importing MLflow costs more than filtering a flight),
 # over all flights, and thesis-style figures (Figs. 4.2-4.8) for one chosen flight.
-# The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`.
+# The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`; unless they
+# select a filter, it is the one the diagnoses read (qr.estimation.settings.DIAGNOSIS_FILTER), so the
+# cross-fit files are theirs and no diagnosis filters a flight again.
+from qr.config import selects_filter
+from qr.estimation.settings import DIAGNOSIS_FILTER
 
 FILTER = config.get("filter", {})
+FILTER_OVERRIDES = list(FILTER.get("overrides", []))
+if not selects_filter(FILTER_OVERRIDES):
+    FILTER_OVERRIDES.insert(0, f"filter={DIAGNOSIS_FILTER}")
 _first = next(iter(SETS))  # default: the first flight of the first set
 FIGURE_SET, FIGURE_FLIGHT = FILTER.get("figure_flight", f"{_first}/{SETS[_first]['flights'][0]}").split("/")
 FILTER_FIGURES = ["position", "velocity", "acceleration", "quaternion", "angular_velocity",
@@ -25,7 +32,7 @@ rule filter:
     benchmark:
         "results/benchmarks/filter/{set}/{flight}.tsv"
     params:
-        overrides=list(FILTER.get("overrides", [])),
+        overrides=FILTER_OVERRIDES,
         name=lambda wc: f"{wc.set}/{wc.flight}",
     conda:
         "../envs/qr.yaml"

@@ -1,8 +1,23 @@
 """The diagnosis library: what the nominal model gets wrong, the cause named, the model extended.
 
-``core`` (prepare the labels, identify, select, bootstrap), ``crossfit`` (the estimates it needs:
-full and even/odd halves, matched rotor signals), ``matched``, ``noise``, ``replay``, ``slow_torque``,
-``remainder``, ``accelerometer``, ``coefficients`` (vehicle-file checks), ``report`` (report.md,
-figures, diagnosis.json), ``settings`` (DiagnoseConfig).  These take and return arrays and
-dataframes; the stage that reads and writes files is :mod:`qr.stages.diagnose`.
+``qr.diagnose.run(estimates, flights, vehicle, settings) -> Diagnosis`` (:mod:`.diagnosis`) builds a
+diagnosis by named steps: ``labels`` (the residual labels), ``fit`` (selection, delay, parameters,
+standard errors), ``held_out`` (what the held-out part supports; whether the model describes the
+flights), ``replay`` (replay and rollout), ``remainder`` (structure beyond the catalog, the learned
+torque remainder), ``accelerometer``, ``coefficients`` (statements about the vehicle file); ``core`` holds
+the algebra they share, ``noise`` the noise floor, ``slow_torque`` the slow torque balance, ``flights``
+the flights' checks, ``settings`` the settings (DiagnoseConfig).  ``document`` makes diagnosis.json of a
+:class:`Diagnosis`, ``report`` its report.md and figures.  The estimates it reads are the filter
+stage's (:mod:`qr.estimation.crossfit`).  These take and return arrays and dataframes; the stage that
+reads and writes files is :mod:`qr.stages.diagnose`.
 """
+
+
+def __getattr__(name: str):
+    # ``run`` and ``Diagnosis`` on first use: the config tree imports .settings, and composing it must
+    # not import the whole library (numba kernels, the plant)
+    if name in ("run", "Diagnosis", "Settings"):
+        from . import diagnosis
+
+        return getattr(diagnosis, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

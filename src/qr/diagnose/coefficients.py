@@ -25,6 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..effects import CATALOG
+from ..identification.normal_equations import Columns, fit, inflation
+
 GROSS = 1.5  # a factor this far from 1, either way, is a wrong number in the file, not a small correction
 VIF_MAX = 10.0  # variance inflation above which a parameter is a combination with another, not itself
 HOVER_TOL = 1.25  # a C_T or mass factor may disagree with the log's hover balance by this factor at most
@@ -41,9 +44,6 @@ class Evidence:
 
 def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
     """:class:`Evidence` of each effect of ``named`` fitted by the one-step fit (not those in ``fixed``)."""
-    from ..effects import CATALOG
-    from ..identification.normal_equations import Columns, fit, inflation
-
     own = [e for e in named if e not in fixed]
     if not own:
         return {}
@@ -92,8 +92,6 @@ def _gross(factor: float) -> int:
 
 def _why_not(name, key, sym, factor, param, ev: Evidence | None, vehicle, hover_ratio) -> str | None:
     """Why a gross factor of ``sym`` is not identified by these data; None if it is."""
-    from ..effects import CATALOG
-
     if ev is None:
         return "it is not fitted by the one-step fit (its stability cannot be checked)"
     j = list(CATALOG[name].params).index(param)

@@ -52,11 +52,12 @@ def noise_sd(states: pd.DataFrame, R: np.ndarray, vehicle, residual: np.ndarray)
     return np.sqrt(var)
 
 
-def calibrate(fitprep, *others) -> list[float]:
-    """Scale the noise floor of ``fitprep`` (and ``others``) per axis to the label noise the data show.
+def calibrate(fitprep) -> list[float]:
+    """The per-axis factor that scales the noise floor's standard deviations to the label noise the data
+    show (1 where fewer than 100 training stamps have both halves' labels).
 
     ``fitprep`` stacks the cross-fitting halves (labels of the even-sample filter, then of the
-    odd-sample one, at the same stamps).  Returns the per-axis scale applied to the standard deviations.
+    odd-sample one, at the same stamps).
     """
     n = len(fitprep.t) // 2
     ya, yb, sa, sb = fitprep.y[:n], fitprep.y[n:], fitprep.sd[:n], fitprep.sd[n:]
@@ -66,10 +67,7 @@ def calibrate(fitprep, *others) -> list[float]:
         return [1.0] * 6
     emp = np.mean((ya[ok] - yb[ok]) ** 2, axis=0)
     model = np.mean(sa[ok] ** 2 + sb[ok] ** 2, axis=0)
-    scale = np.sqrt(np.where(model > 0, emp / np.maximum(model, 1e-300), 1.0))
-    for p in {id(x): x for x in (fitprep, *others)}.values():
-        p.sd = p.sd * scale
-    return scale.tolist()
+    return np.sqrt(np.where(model > 0, emp / np.maximum(model, 1e-300), 1.0)).tolist()
 
 
 def difference_noise(residual: np.ndarray) -> np.ndarray:

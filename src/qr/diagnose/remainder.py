@@ -1,33 +1,49 @@
-"""Beyond the catalog: does a learned model still find structure in what the named effects leave?
+"""What the named effects leave: structure beyond the catalog, and the learned torque remainder.
 
-A non-leaking learned model (``qr.models``; inputs never include ``a_b`` or
-``alpha``, from which the residual is computed) is fit to the training part of
-the remaining residual and judged on the held-out part.  Structure remains when
-it cuts the held-out weighted loss by more than ``remainder_min_gain``; each
-input group alone then says what the remainder is correlated with.
+Beyond the catalog (:func:`remainder`): a non-leaking learned model (``qr.models``; inputs never
+include ``a_b`` or ``alpha``, from which the residual is computed) is fit to the training part of
+the remaining residual and judged on the held-out part.  Structure remains when it cuts the
+held-out weighted loss by more than ``remainder_min_gain``; each input group alone then says what
+the remainder is correlated with.
+
+The learned torque remainder (:func:`fit_torque_remainder`, ``diagnose.torque_remainder_ridge > 0``):
+a linear map (:mod:`qr.torque_remainder`) of the torque the named effects leave, written into the
+extended vehicle as a hybrid, not a cause.
+
+Both on the cross-fitted labels (features from one half-sample filter, labels from the other: no
+shared noise).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from .. import torque_remainder as trm
 from ..parallel import thread_map
-from .core import extended_prediction, weights
+from .core import extended_prediction, rms
+from .fit import Fit
+from .labels import weights
+from .settings import DiagnoseConfig
 
 
-def remainder(res: dict, vehicle, cfg) -> dict:
+def _left(f: Fit, vehicle, rows: np.ndarray) -> np.ndarray:
+    """The residual the named effects leave on ``rows`` of the cross-fitted labels."""
+    prep = f.labels.cross
+    return prep.y[rows] - extended_prediction(prep, vehicle, f.named, f.theta, rows, f.force_only)
+
+
+def remainder(f: Fit, vehicle, cfg: DiagnoseConfig) -> dict:
     try:
         from ..datasets import features
         from ..models import fit
     except ImportError:
         return {"evaluated": False, "statement": "Not evaluated: the learning stage (qr.models) is not installed."}
-    # cross-fitted data: features from one half-sample filter, labels from the other (no shared noise)
-    prep = res["fitprep"]
-    named, theta = res["named"], res["theta"]
+    prep = f.labels.cross
     tr, te = np.flatnonzero(prep.train), np.flatnonzero(prep.test)
     s_tr, s_te = prep.s.take(tr), prep.s.take(te)
-    r_tr = prep.y[tr] - extended_prediction(prep, vehicle, named, theta, tr, res.get("force_only", ()))
-    r_te = prep.y[te] - extended_prediction(prep, vehicle, named, theta, te, res.get("force_only", ()))
+    r_tr, r_te = _left(f, vehicle, tr), _left(f, vehicle, te)
     w_te = weights(prep.sd)[te]
     l0 = float(np.nanmean(w_te * r_te**2))
 
@@ -51,3 +67,32 @@ def remainder(res: dict, vehicle, cfg) -> dict:
     return {"evaluated": True, "structure_remains": bool(remains), "held_out_gain": round(g_all, 4),
             "by_input_group": {k: round(v, 4) for k, v in per_group.items()},
             "correlated_with": top if remains else None, "statement": statement}
+
+
+@dataclass(frozen=True)
+class TorqueRemainder:
+    """The learned torque remainder fitted on the training part, and its held-out torque RMSE (x, y, z)
+    beside the extended model's."""
+
+    weights: np.ndarray  # (3, N_FEATURES): torque = features @ weights.T
+    ridge: float
+    extended_torque_rmse: list[float]
+    hybrid_torque_rmse: list[float]
+
+    def in_vehicle(self, vehicle, note: str) -> dict:
+        """The ``torque_remainder`` block of a vehicle file: these weights added to the vehicle's own."""
+        own = trm.weights(vehicle)
+        return trm.block(self.weights + (own if own is not None else 0.0), note)
+
+
+def fit_torque_remainder(f: Fit, vehicle, ridge: float) -> TorqueRemainder:
+    """The learned torque remainder of what ``f`` leaves (see the module doc)."""
+    prep = f.labels.cross
+    tr = np.flatnonzero(prep.train)
+    s_tr = prep.s.take(tr)
+    W = trm.fit(trm.features(s_tr.v_b, s_tr.omega, s_tr.u, vehicle.hover_speed), _left(f, vehicle, tr)[:, 3:6], ridge)
+    te = np.flatnonzero(prep.test)  # cross-fitted too: a label's own rotor noise is not in its features
+    s_te = prep.s.take(te)
+    r_te = _left(f, vehicle, te)
+    hybrid = r_te[:, 3:6] - trm.features(s_te.v_b, s_te.omega, s_te.u, vehicle.hover_speed) @ W.T
+    return TorqueRemainder(W, ridge, rms(r_te[:, 3:6]).tolist(), rms(hybrid).tolist())

@@ -5,19 +5,23 @@ by the measured (filtered) rotor speeds; its predicted positions and attitudes
 are compared with the motion-capture measurements.  The extended model is the
 same TRUE plant ``qr synth`` flies (``qr.sim.plant``), with the named effects
 as its physics, so a replay and a synthetic flight never disagree on what an
-effect means.
+effect means.  The diagnosis also rolls the models out from every held-out
+start (:func:`rollout_all`, the field's yardstick: :mod:`qr.rollout`).
 """
 
 from __future__ import annotations
-
 
 import numba as nb
 import numpy as np
 import pandas as pd
 
+from .. import rollout
+from ..flight import on_stamps
 from ..frames import quat_to_rot
+from ..parallel import thread_map
 from ..sim.plant import P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
+from .labels import flight_of
 
 
 @nb.njit(cache=True)
@@ -136,3 +140,50 @@ def growth(err: pd.DataFrame, horizon_s: float, bins: int = 20) -> pd.DataFrame:
     g = err.assign(bin=b).groupby("bin")[["ex", "ey", "ez"]].apply(lambda d: np.sqrt((d**2).mean()))
     g.insert(0, "elapsed", (edges[:-1] + edges[1:])[g.index] / 2)
     return g.reset_index(drop=True)
+
+
+def replay_all(states_list, measured_list, vehicle, extension: list[dict], horizon_s: float,
+               windows: list[dict]) -> dict:
+    """Replay each state table (a flight or a gap-free segment of one) on its own measured rows, with the
+    vehicle's own effects (``nominal``) and with ``extension`` added (``extended``): per model the errors,
+    their summary at the horizon and their growth, over the windows that start in each flight's held-out
+    part (``windows``: per flight, its train/test windows)."""
+    out = {"nominal": [], "extended": []}
+    owner = flight_of(states_list)
+    for i, (st, meas) in enumerate(zip(states_list, measured_list)):
+        meas = on_stamps(meas, st["t"])
+        models = (("nominal", vehicle.effects), ("extended", vehicle.effects + extension))
+        errs = thread_map(lambda m: replay(st, meas, vehicle, m[1], horizon_s), models)
+        for (key, _), err in zip(models, errs):
+            out[key].append(err.assign(test=err["t"] >= windows[owner[i]]["test"][0], flight=i))
+    res = {}
+    for key in out:
+        err = pd.concat(out[key], ignore_index=True)
+        err["window"] = err["flight"] * 100000 + err["window"]
+        # a window belongs to the test part when it starts there
+        start_test = err.groupby("window")["test"].transform("first")
+        res[key] = {"errors": err, "summary": summarise(err, horizon_s, start_test.to_numpy()),
+                    "growth": growth(err[start_test.to_numpy()], horizon_s)}
+    return res
+
+
+def rollout_all(states_list, measured_list, vehicle, extension: list[dict], windows: list[dict], horizon: int,
+                max_input_gap: int, trim_s: float, hybrid=None) -> dict:
+    """Multi-step rollout (qr.rollout) of the nominal and the extended model (``extension`` added) and the
+    references, from the held-out starts of every state table (a flight or a gap-free segment of one):
+    the spec's block.  ``hybrid``: a vehicle rolled out beside them (the extended one with its learned
+    torque remainder)."""
+    models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicle), "nominal": (vehicle, list(vehicle.effects)),
+              "extended": (vehicle, list(vehicle.effects) + extension)}
+    if hybrid is not None:
+        models["hybrid"] = (hybrid, list(hybrid.effects))
+    owner = flight_of(states_list)
+    parts = []
+    for i, (st, meas) in enumerate(zip(states_list, measured_list)):
+        st, meas, keep = rollout.pieces(st, meas, trim_s)
+        keep &= st["t"].to_numpy() >= windows[owner[i]]["test"][0]
+        if keep.any():
+            parts.append(rollout.score(st, meas, horizon, max_input_gap, models, keep))
+    pooled = rollout.pool(parts)
+    return {"horizon": horizon, "part": "held-out",
+            "models": {k: rollout.summary(*v) for k, v in pooled.items()}}

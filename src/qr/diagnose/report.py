@@ -1,4 +1,8 @@
-"""``diagnosis.json`` (the machine contract of docs/spec/diagnosis.md) and ``report.md``."""
+"""``report.md`` and its figures, drawn from a :class:`qr.diagnose.Diagnosis`.
+
+Every number a sentence states is the one ``diagnosis.json`` states (:func:`qr.diagnose.document.stated`);
+the tables of RMSE and anatomy print the diagnosis's own numbers to their own digits.
+"""
 
 from __future__ import annotations
 
@@ -7,73 +11,14 @@ from pathlib import Path
 import numpy as np
 from matplotlib.ticker import MaxNLocator
 
+from ..atomic import write_text
 from ..effects import CATALOG
 from ..report import figures
+from ..rollout import table
+from .accelerometer import statement as accelerometer_statement
 from .core import AXES
-
-SCHEMA = "qr.diagnosis/1"
-
-
-def _r(x, n=6):
-    return [float(f"{v:.{n}g}") for v in x]
-
-
-def to_json(res: dict, flight_names: list[str], cfg_dict: dict) -> dict:
-    rep_n, rep_e = res["replay"]["nominal"]["summary"], res["replay"]["extended"]["summary"]
-    effects = [{
-        "name": e["name"],
-        "parameters": {k: float(f"{v:.6g}") for k, v in e["parameters"].items()},
-        "stderr": {k: float(f"{v:.3g}") for k, v in e["stderr"].items()},
-        "explained_fraction": float(f"{e['explained_fraction']:.4g}"),
-        "confounded_with": list(e["confounded_with"]),
-    } for e in res["effects"]]
-    w0 = res["windows"][0]
-    ms = lambda w: [round(float(x), 3) for x in w]  # noqa: E731  (on the file's t axis, which may be a clock)
-    return {
-        "schema": SCHEMA,
-        "flights": flight_names,
-        "samples": res["samples"],
-        "split": {"train": ms(w0["train"]), "test": ms(w0["test"]),
-                  "per_flight": [{"train": ms(w["train"]), "test": ms(w["test"])} for w in res["windows"]]},
-        "nominal": {"force_rmse": _r(res["nominal_rmse"][:3]), "torque_rmse": _r(res["nominal_rmse"][3:])},
-        "effects": effects,
-        "extended": {"force_rmse": _r(res["extended_rmse"][:3]), "torque_rmse": _r(res["extended_rmse"][3:])},
-        "replay": {
-            "horizon_s": float(cfg_dict["horizon_s"]),
-            "nominal_position_rmse": float(f"{rep_n.get('position_rmse', float('nan')):.6g}"),
-            "extended_position_rmse": float(f"{rep_e.get('position_rmse', float('nan')):.6g}"),
-            "nominal_position_rmse_axes": _r(rep_n.get("position_rmse_axes", [])),
-            "extended_position_rmse_axes": _r(rep_e.get("position_rmse_axes", [])),
-            "nominal_attitude_rmse_deg": float(f"{rep_n.get('attitude_rmse_deg', float('nan')):.4g}"),
-            "extended_attitude_rmse_deg": float(f"{rep_e.get('attitude_rmse_deg', float('nan')):.4g}"),
-            "windows": rep_n.get("windows", 0),
-        },
-        "rollout": res.get("rollout", {}),
-        "noise_floor": {"force_rmse": _r(res["noise_floor_rmse"][:3]), "torque_rmse": _r(res["noise_floor_rmse"][3:]),
-                        "source": res.get("noise_source", "filter covariance")},
-        "remainder": res.get("remainder", {}),
-        "anatomy": {k: _r(v, 4) for k, v in res.get("anatomy", {}).items()},
-        "selection": {"cv_loss_nominal": float(f"{res['selection']['cv_loss_nominal']:.6g}"),
-                      "cv_loss_final": float(f"{res['selection']['cv_loss_final']:.6g}"),
-                      "path": [_clean(s) for s in res["selection"]["path"]],
-                      "equivalent": [_clean(s) for s in res["selection"].get("equivalent", [])],
-                      "rejected": res["selection"].get("rejected", {}),
-                      "not_named": res["selection"].get("not_named", {}),
-                      "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in d.items()}
-                                             for k, d in res.get("torque_arbitration", {}).items()},
-                      "slow_torque": _slow_json(res.get("slow_torque"))},
-        "verdict": verdict(res),
-        "described": not res.get("misfit"),
-        **({"misfit": {k: float(f"{v:.4g}") for k, v in res["misfit"].items()}} if res.get("misfit") else {}),
-        "config": cfg_dict,
-    }
-
-
-def _slow_json(slow: dict | None) -> dict | None:
-    if not slow:
-        return None
-    axes = [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in a.items()} for a in slow["axes"]]
-    return {**slow, "axes": axes}
+from .diagnosis import Diagnosis
+from .document import stated
 
 
 def _slow_torque_lines(slow: dict | None) -> list[str]:
@@ -89,65 +34,6 @@ def _slow_torque_lines(slow: dict | None) -> list[str]:
                              else f": not named, it {a['why_not']} on {a['axis']}"))
     return [f"Slow torque balance (each inertia entry judged on its axis's torque residual summed over "
             f"{slow['horizon']} samples, after the named effects): " + "; ".join(parts) + ".\n"]
-
-
-def _clean(step: dict) -> dict:
-    out = {}
-    for k, v in step.items():
-        if isinstance(v, float):
-            out[k] = float(f"{v:.4g}")
-        elif isinstance(v, dict):
-            out[k] = {kk: float(f"{vv:.4g}") for kk, vv in list(v.items())[:6]}
-        else:
-            out[k] = v
-    return out
-
-
-def verdict(res: dict) -> str:
-    ratio = res["nominal_loss"]
-    misfit = res.get("misfit")
-    if misfit:
-        return (f"The model does not describe this flight: even extended, the held-out residual is "
-                f"{100 * misfit['force_of_weight']:.0f} % of the weight in force and "
-                f"{100 * misfit['torque_of_weight_at_arm']:.0f} % of the weight's torque at the arm "
-                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so nothing is named. Look at the "
-                "log's frames and units (the convention checks in diagnosis.json), its time stamps and offsets "
-                "(qr ingest prints them), the vehicle file (mass, thrust_coeff, rotor_speed_unit, layout) and "
-                "events no model holds (ground contact, a tether, a crash).")
-    if not res["effects"]:
-        rem = res.get("remainder", {})
-        tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
-                if rem.get("structure_remains") else "")
-        # "up to noise" only when the residual is at the noise floor's level (weighted loss ~ 1)
-        fit = ("the nominal model explains this flight up to noise" if ratio < 2 else
-               "no candidate effect explains the residual, which is well above noise")
-        return (f"Nothing named: {fit} (weighted residual {ratio:.2f} x the noise floor's variance on "
-                f"held-out data).{tail}")
-    names = ", ".join(e["name"] for e in res["effects"])
-    gain = 1 - res["extended_loss"] / res["nominal_loss"]
-    return (f"Named {names}; the extended model removes {100 * gain:.0f} % of the nominal model's weighted "
-            f"held-out residual variance (now {res['extended_loss']:.2f} x the noise floor's variance).")
-
-
-def note_nulls(doc: dict) -> dict:
-    """``doc`` as strict JSON: a number that is not finite becomes null, and ``notes`` says why."""
-    from ..atomic import finite_or_null
-
-    doc, nulls = finite_or_null(doc)
-    notes = []
-    if any(p.startswith("anatomy.") for p in nulls):
-        notes.append("anatomy: null for an axis whose held-out residual is at the noise floor (nothing above "
-                     "noise to share out)")
-    held = [p for p in nulls if p.startswith("effects[") and ".stderr." in p]
-    if held:
-        notes.append(f"stderr null for a parameter held at the vehicle file's value, not estimated "
-                     f"(selection.slow_torque says why): {', '.join(held)}")
-    other = [p for p in nulls if not p.startswith("anatomy.") and p not in held]
-    if other:
-        notes.append(f"null where the number is not finite on this data (not computable): {', '.join(other)}")
-    if notes:
-        doc["notes"] = notes
-    return doc
 
 
 def _anatomy_table(anatomy: dict) -> list[str]:
@@ -185,31 +71,33 @@ def _conventions(per_flight: list[dict]) -> list[str]:
     return out + [""]
 
 
-def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
-    L = []
+def _opening(doc: dict) -> list[str]:
     names = doc["flights"]
     title = ", ".join(names) if len(names) <= 3 else f"{len(names)} flights ({names[0]} ... {names[-1]})"
-    L.append(f"# Diagnosis: {title}\n")
-    L.append(f"**{doc['verdict']}**\n")
-    L.append(f"{doc['samples']} samples. The first {100 * doc['config']['train_fraction']:.0f} % of each flight trains, "
-             f"the rest is held out after a {doc['config']['gap_s']:g} s gap (first flight: trained on "
-             f"{doc['split']['train'][0]:.1f}-{doc['split']['train'][1]:.1f} s, tested on "
-             f"{doc['split']['test'][0]:.1f}-{doc['split']['test'][1]:.1f} s); all numbers below are on the "
-             "held-out part.\n")
-    L += _data_used(doc)
-    L += _conventions(doc.get("conventions", []))
-    L.append("## How far the nominal model is off\n")
-    L.append("| axis | nominal RMSE | extended RMSE | noise floor | extended / noise |")
-    L.append("|---|---:|---:|---:|---:|")
+    cfg, split = doc["config"], doc["split"]
+    return [f"# Diagnosis: {title}\n", f"**{doc['verdict']}**\n",
+            f"{doc['samples']} samples. The first {100 * cfg['train_fraction']:.0f} % of each flight trains, "
+            f"the rest is held out after a {cfg['gap_s']:g} s gap (first flight: trained on "
+            f"{split['train'][0]:.1f}-{split['train'][1]:.1f} s, tested on "
+            f"{split['test'][0]:.1f}-{split['test'][1]:.1f} s); all numbers below are on the held-out part.\n"]
+
+
+def _how_far(d: Diagnosis) -> list[str]:
+    h = d.held_out
+    L = ["## How far the nominal model is off\n", "| axis | nominal RMSE | extended RMSE | noise floor | extended / noise |",
+         "|---|---:|---:|---:|---:|"]
     for i, a in enumerate(AXES):
         unit = "N" if i < 3 else "N m"
-        n, e, f = res["nominal_rmse"][i], res["extended_rmse"][i], res["noise_floor_rmse"][i]
+        n, e, f = h.nominal_rmse[i], h.extended_rmse[i], h.noise_floor_rmse[i]
         L.append(f"| {a} ({unit}) | {n:.4g} | {e:.4g} | {f:.4g} | {e / f:.2f} |")
-    L.append("")
-    L.append("## Named causes\n")
+    return L + [""]
+
+
+def _named_causes(d: Diagnosis, doc: dict) -> list[str]:
+    L = ["## Named causes\n"]
     if doc["effects"]:
-        L.append("| effect | parameters (± block-bootstrap s.e.) | explained fraction | confounded with |")
-        L.append("|---|---|---:|---|")
+        L += ["| effect | parameters (± block-bootstrap s.e.) | explained fraction | confounded with |",
+              "|---|---|---:|---|"]
         for e in doc["effects"]:
             par = ", ".join(f"{k} = {v:.4g} ± {e['stderr'].get(k, float('nan')):.2g}" for k, v in e["parameters"].items())
             L.append(f"| `{e['name']}` | {par} | {e['explained_fraction']:.3f} | "
@@ -221,120 +109,142 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
                 L.append(f"  On this flight it cannot be told apart from {', '.join(e['confounded_with'])}; "
                          "the simpler one is named.")
         L.append("")
-    elif res.get("misfit"):
+    elif d.held_out.misfit:
         L.append("None: the model does not describe this flight (above).\n")
-    elif doc["selection"].get("not_named"):
+    elif d.not_named:
         L.append("None: what the selection found on the training part is not supported by the held-out part "
                  "(below).\n")
     else:
         L.append("None: no catalog effect improves the cross-validated fit by more than "
                  f"{100 * doc['config']['selection']['min_gain']:.0f} % of the residual.\n")
-    if doc["selection"].get("not_named"):
-        L.append("Selected on the training part, but not named:\n")
-        L += [f"- `{e}`: {why}." for e, why in doc["selection"]["not_named"].items()]
-        L.append("")
-    if doc.get("vehicle_file") or doc.get("vehicle_file_unresolved"):
-        L.append("## The vehicle file\n")
-        L += [f"- {c['statement'][0].upper() + c['statement'][1:]}." for c in doc.get("vehicle_file", [])]
-        L += [f"- {c['why']}." for c in doc.get("vehicle_file_unresolved", [])]
-        L.append("")
-    L.append("Selection path: the best set of each size by cross-validated loss (noise-variance units); a "
-             "larger set is named only if it beats the smaller one by "
-             f"{100 * doc['config']['selection']['min_gain']:.0f} % in most folds, or by "
-             f"{100 * doc['config']['selection']['strong_gain']:.0f} % where it acts (paired per-block t >= "
-             f"{doc['config']['selection']['t_gain']:g}). The closest margin is the decision's statistic against "
-             "its nearest threshold (relative); within 1e-9 it is numerical noise, decided against the larger "
-             "set on every machine (\"on the edge\"):\n")
-    L.append("| effects | best set | CV loss | gain | folds improved | paired t | runner-up (loss) | named | "
-             "closest margin |")
-    L.append("|---:|---|---:|---:|---:|---:|---|---|---:|")
-    for s in doc["selection"]["path"]:
-        best = ", ".join(f"`{e}`" for e in s["effects"]) or "(nominal)"
-        runner = (", ".join(s["runner_up"]) + f" ({s['runner_up_loss']:.4g})") if s.get("runner_up") else "-"
-        gain = f"{100 * s['gain']:.1f} %" if s["size"] else "-"
-        share = f"{100 * s['fold_share']:.0f} %" if s["size"] else "-"
-        med = f"{s['t']:.1f}" if s["size"] else "-"
-        edge = "-" if "margin" not in s else (f"on the edge ({s['margin']:.1e}: {', '.join(s['on_edge'])})"
-                                             if s["on_edge"] else f"{s['margin']:+.2g}")
-        L.append(f"| {s['size']} | {best} | {s['loss']:.4g} | {gain} | {share} | {med} | {runner} | "
-                 f"{'yes' if s['accepted'] else 'no'} | {edge} |")
-    L.append("")
-    if doc["selection"].get("equivalent"):
+    if d.not_named:
+        L += ["Selected on the training part, but not named:\n", *(f"- `{e}`: {why}." for e, why in d.not_named.items()),
+              ""]
+    return L
+
+
+def _vehicle_file(doc: dict) -> list[str]:
+    if not (doc["vehicle_file"] or doc["vehicle_file_unresolved"]):
+        return []
+    return ["## The vehicle file\n", *(f"- {c['statement'][0].upper() + c['statement'][1:]}." for c in doc["vehicle_file"]),
+            *(f"- {c['why']}." for c in doc["vehicle_file_unresolved"]), ""]
+
+
+def _path_row(s: dict) -> str:
+    best = ", ".join(f"`{e}`" for e in s["effects"]) or "(nominal)"
+    runner = (", ".join(s["runner_up"]) + f" ({s['runner_up_loss']:.4g})") if s.get("runner_up") else "-"
+    gain = f"{100 * s['gain']:.1f} %" if s["size"] else "-"
+    share = f"{100 * s['fold_share']:.0f} %" if s["size"] else "-"
+    med = f"{s['t']:.1f}" if s["size"] else "-"
+    edge = "-" if "margin" not in s else (f"on the edge ({s['margin']:.1e}: {', '.join(s['on_edge'])})"
+                                         if s["on_edge"] else f"{s['margin']:+.2g}")
+    return (f"| {s['size']} | {best} | {s['loss']:.4g} | {gain} | {share} | {med} | {runner} | "
+            f"{'yes' if s['accepted'] else 'no'} | {edge} |")
+
+
+def _selection(doc: dict) -> list[str]:
+    sel, c = doc["selection"], doc["config"]["selection"]
+    L = ["Selection path: the best set of each size by cross-validated loss (noise-variance units); a "
+         "larger set is named only if it beats the smaller one by "
+         f"{100 * c['min_gain']:.0f} % in most folds, or by {100 * c['strong_gain']:.0f} % where it acts (paired "
+         f"per-block t >= {c['t_gain']:g}). The closest margin is the decision's statistic against "
+         "its nearest threshold (relative); within 1e-9 it is numerical noise, decided against the larger "
+         "set on every machine (\"on the edge\"):\n",
+         "| effects | best set | CV loss | gain | folds improved | paired t | runner-up (loss) | named | "
+         "closest margin |", "|---:|---|---:|---:|---:|---:|---|---|---:|", *map(_path_row, sel["path"]), ""]
+    if sel["equivalent"]:
         L.append("Sets the data cannot tell from the named one (the simplest is named):\n")
-        for e in doc["selection"]["equivalent"]:
-            L.append(f"- {', '.join(f'`{x}`' for x in e['effects'])}: CV loss {e['loss']:.4g} "
-                     f"(paired t {e['t']:.2f})")
+        L += [f"- {', '.join(f'`{x}`' for x in e['effects'])}: CV loss {e['loss']:.4g} (paired t {e['t']:.2f})"
+              for e in sel["equivalent"]]
         L.append("")
-    L += _anatomy_table(res.get("anatomy") or {})
-    for name, d in doc["selection"].get("torque_arbitration", {}).items():
-        given = ", ".join(f"`{e}`" for e in d.get("given", [])) or "no other effect"
+    return L
+
+
+def _arbitration(doc: dict) -> list[str]:
+    L = []
+    for name, a in doc["selection"]["torque_arbitration"].items():
+        given = ", ".join(f"`{e}`" for e in a.get("given", [])) or "no other effect"
         L.append(f"Roll/pitch torque cannot arbitrate `{name}`: given {given}, the torque rows would need "
-                 f"{d['torque_rows'][0]:.3g} (the force rows alone {d['force_rows'][0]:.3g}), beyond any plausible "
+                 f"{a['torque_rows'][0]:.3g} (the force rows alone {a['force_rows'][0]:.3g}), beyond any plausible "
                  "C_T error: the measured roll/pitch torque is not the rotor map's (inertia, latency or smoothing "
                  f"of the attitude channel).  `{name}` is fitted on the force rows, where it is the same term as "
                  "`mass_error` (reported as confounded).\n")
-    L += _slow_torque_lines(doc["selection"].get("slow_torque"))
-    if doc["selection"].get("rejected"):
-        L.append("Candidates not named on this data (unphysical, self-contradicting, or collinear with a "
-                 "named effect):\n")
-        for name, why in doc["selection"]["rejected"].items():
-            L.append(f"- `{name}`: {why}.")
-        L.append("")
-    rem = doc.get("remainder") or {}
-    if rem:
-        L.append("## Beyond the catalog\n")
-        L.append(rem.get("statement", ""))
-        L.append("")
+    return L
+
+
+def _rejected(doc: dict) -> list[str]:
+    rejected = doc["selection"]["rejected"]
+    if not rejected:
+        return []
+    return ["Candidates not named on this data (unphysical, self-contradicting, or collinear with a "
+            "named effect):\n", *(f"- `{name}`: {why}." for name, why in rejected.items()), ""]
+
+
+def _beyond(d: Diagnosis) -> list[str]:
+    return ["## Beyond the catalog\n", d.remainder.get("statement", ""), ""] if d.remainder else []
+
+
+def _replay(doc: dict) -> list[str]:
     r = doc["replay"]
-    L.append(f"## Open-loop replay (restarted every {r['horizon_s']:g} s, driven by the measured rotor speeds)\n")
-    L.append("| model | position RMSE at horizon (m) | x | y | z | attitude (deg) |")
-    L.append("|---|---:|---:|---:|---:|---:|")
+    L = [f"## Open-loop replay (restarted every {r['horizon_s']:g} s, driven by the measured rotor speeds)\n",
+         "| model | position RMSE at horizon (m) | x | y | z | attitude (deg) |", "|---|---:|---:|---:|---:|---:|"]
     for k in ("nominal", "extended"):
         ax = r[f"{k}_position_rmse_axes"] or [float("nan")] * 3
         L.append(f"| {k} | {r[f'{k}_position_rmse']:.4g} | {ax[0]:.3g} | {ax[1]:.3g} | {ax[2]:.3g} | "
                  f"{r[f'{k}_attitude_rmse_deg']:.3g} |")
-    L.append("")
-    ro = doc.get("rollout") or {}
-    if ro.get("models"):
-        from ..rollout import table
+    return L + [""]
 
-        L.append(f"## Multi-step rollout (held-out part, every start, H = {ro['horizon']} steps; `qr evaluate`)\n")
-        L.append("Mean absolute error at step h: p (m), v (m/s), R (rad), w (rad/s); `hold` holds the state, "
-                 "`rate_frozen` is the benchmark's physics baseline (nominal thrust, no drag, body rate held).\n")
-        L += table(ro["models"], ro["horizon"])
-        L.append("")
-        ex = ro.get("explained")
-        if ex:
-            fmt = lambda x: "–" if x is None or x != x else f"{100 * x:.0f} %"  # noqa: E731
-            L.append(f"Share of the held-out residual the named effects explain, sample by sample and summed "
-                     f"over {ex['horizon']} samples (the slow error a rollout integrates):\n")
-            L.append("| | " + " | ".join(AXES) + " |")
-            L.append("|---|" + "---:|" * len(AXES))
-            L.append("| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |")
-            L.append(f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |")
-            L.append("")
+
+def _rollout(d: Diagnosis) -> list[str]:
+    ro = d.rollout
+    if not ro.get("models"):
+        return []
+    L = [f"## Multi-step rollout (held-out part, every start, H = {ro['horizon']} steps; `qr evaluate`)\n",
+         "Mean absolute error at step h: p (m), v (m/s), R (rad), w (rad/s); `hold` holds the state, "
+         "`rate_frozen` is the benchmark's physics baseline (nominal thrust, no drag, body rate held).\n",
+         *table(ro["models"], ro["horizon"]), ""]
+    ex = ro.get("explained")
+    if ex:
+        fmt = lambda x: "–" if x is None or x != x else f"{100 * x:.0f} %"  # noqa: E731
+        L += [f"Share of the held-out residual the named effects explain, sample by sample and summed "
+              f"over {ex['horizon']} samples (the slow error a rollout integrates):\n",
+              "| | " + " | ".join(AXES) + " |", "|---|" + "---:|" * len(AXES),
+              "| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |",
+              f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |", ""]
+    return L
+
+
+def _torque_remainder(doc: dict) -> list[str]:
     rem = doc.get("torque_remainder")
-    if rem:
-        L.append("## Learned torque remainder (a hybrid, not a cause)\n")
-        L.append(f"A linear map of {rem['features']} (ridge {rem['ridge']:g}), fitted on the training part to the "
-                 "torque the named effects leave, is written into `extended_vehicle.yaml` (`torque_remainder`) and "
-                 "rolled out as `hybrid` above. Held-out torque RMSE x / y / z (N m): extended "
-                 + " / ".join(f"{x:.2e}" for x in rem["extended_torque_rmse"]) + ", hybrid "
-                 + " / ".join(f"{x:.2e}" for x in rem["hybrid_torque_rmse"]) + ".\n")
-    acc = doc.get("accelerometer_check")
-    if acc:
-        from .accelerometer import statement
+    if not rem:
+        return []
+    return ["## Learned torque remainder (a hybrid, not a cause)\n",
+            f"A linear map of {rem['features']} (ridge {rem['ridge']:g}), fitted on the training part to the "
+            "torque the named effects leave, is written into `extended_vehicle.yaml` (`torque_remainder`) and "
+            "rolled out as `hybrid` above. Held-out torque RMSE x / y / z (N m): extended "
+            + " / ".join(f"{x:.2e}" for x in rem["extended_torque_rmse"]) + ", hybrid "
+            + " / ".join(f"{x:.2e}" for x in rem["hybrid_torque_rmse"]) + ".\n"]
 
-        L.append("## The force label against the accelerometer\n")
-        L.append(statement(acc) + "\n")
+
+def _closing(d: Diagnosis, figs: dict) -> list[str]:
+    L = ["## The force label against the accelerometer\n", accelerometer_statement(d.accelerometer) + "\n"] \
+        if d.accelerometer else []
     L.append("## Figures\n")
-    for title, name in figs.items():
-        L.append(f"### {title}\n\n![{title}](figures/{name})\n")
-    L.append("## Extended model\n")
-    L.append("`extended_vehicle.yaml`: the nominal vehicle plus the named effects; `qr synth`, the replay and the "
-             "simulation study accept it.\n")
-    from ..atomic import write_text
+    L += [f"### {title}\n\n![{title}](figures/{name})\n" for title, name in figs.items()]
+    return L + ["## Extended model\n",
+                "`extended_vehicle.yaml`: the nominal vehicle plus the named effects; `qr synth`, the replay and the "
+                "simulation study accept it.\n"]
 
+
+def write_report(outdir: Path, d: Diagnosis, figs: dict) -> None:
+    """``outdir/report.md``: the answer first, then how far the nominal model is off, what is named and
+    why, the vehicle file, the selection's evidence, replay, rollout, and the figures ``figs`` (title ->
+    file name under ``figures/``)."""
+    doc = stated(d)
+    L = [*_opening(doc), *_data_used(doc), *_conventions(doc["conventions"]), *_how_far(d),
+         *_named_causes(d, doc), *_vehicle_file(doc), *_selection(doc), *_anatomy_table(d.held_out.anatomy),
+         *_arbitration(doc), *_slow_torque_lines(doc["selection"]["slow_torque"]), *_rejected(doc), *_beyond(d),
+         *_replay(doc), *_rollout(d), *_torque_remainder(doc), *_closing(d, figs)]
     write_text(outdir / "report.md", "\n".join(L) + "\n")
 
 
@@ -354,21 +264,36 @@ def _data_used(doc: dict) -> list[str]:
     return (["Data used (times in each flight's own clock):\n", *L, ""]) if L else []
 
 
-def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
-    """The report's figures into ``outdir/figures``; ``anatomy``: a :class:`BackgroundFigure` already
-    drawing the residual anatomy."""
+def make_figures(outdir: Path, d: Diagnosis, vehicle, anatomy=None) -> dict:
+    """The report's figures into ``outdir/figures``: title -> file name; ``anatomy``: a
+    :class:`BackgroundFigure` already drawing the residual anatomy."""
     figdir = outdir / "figures"
     figdir.mkdir(exist_ok=True)
-    prep = res["prep"]
+    out = {}
+    residual_figure(d, figdir / "residual_vs_effects.png")
+    out["Held-out residual force and torque of the nominal model (grey; flights one after another, shaded "
+        "alternately) and what the named effects explain (red): where red follows grey, a named effect "
+        "accounts for it"] = "residual_vs_effects.png"
+    replay_figure(d.replay, figdir / "replay_drift.png")
+    out["Open-loop replay: drift of the nominal and extended models"] = "replay_drift.png"
+    if anatomy is None:
+        anatomy_figure(d.labels.full, vehicle, figdir / "residual_anatomy.png")
+    else:
+        anatomy.collect(figdir / "residual_anatomy.png")
+    out["Residual anatomy: nominal residual against body velocity, height, thrust and the rotor speeds "
+        "(binned means, one colour per rotor)"] = \
+        "residual_anatomy.png"
+    return out
+
+
+def residual_figure(d: Diagnosis, path: Path) -> None:
+    """The held-out residual of the nominal model and the named effects' terms, flights (segments) one
+    after another on the axis, never joined across flights or time gaps."""
+    prep = d.labels.full
     test = prep.test
     step = max(1, int(test.sum()) // 20000)
-    t = prep.t[test][::step]
-    y = prep.y[test][::step]
-    pred = res["pred_test"][::step]
-    out = {}
-
-    # flights (segments) one after another on the axis, never joined across flights or time gaps
-    x, (y, pred), spans = figures.end_to_end(t, prep.flight[test][::step], y, pred)
+    x, (y, pred), spans = figures.end_to_end(prep.t[test][::step], prep.flight[test][::step], prep.y[test][::step],
+                                             d.held_out.prediction[::step])
     fig, axs = figures.subplots(6, 1, figsize=(8, 9), sharex=True)
     for i, ax in enumerate(axs):
         for a, b in spans[1::2]:
@@ -379,26 +304,26 @@ def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
     axs[0].legend(fontsize=7, loc="upper right")
     axs[-1].set_xlabel("t (s), held-out part" if len(spans) == 1 else
                        f"held-out time (s) of {len(spans)} flights or segments, one after another (shaded alternately)")
-    figures.save(fig, figdir / "residual_vs_effects.png")
-    out["Held-out residual force and torque of the nominal model (grey; flights one after another, shaded "
-        "alternately) and what the named effects explain (red): where red follows grey, a named effect "
-        "accounts for it"] = "residual_vs_effects.png"
+    figures.save(fig, path)
 
+
+def replay_figure(replay: dict, path: Path) -> None:
+    """The replay's error growth per axis, and the three worst windows."""
     fig, axs = figures.subplots(1, 2, figsize=(9, 3.2))
     for key, c in (("nominal", "grey"), ("extended", "C3")):
-        g = res["replay"][key]["growth"]
+        g = replay[key]["growth"]
         for j, a in enumerate("xyz"):
             axs[0].plot(g["elapsed"], g[f"e{a}"], color=c, ls=["-", "--", ":"][j], label=f"{key} {a}")
     axs[0].set_xlabel("time since restart (s)")
     axs[0].set_ylabel("RMS position error (m)")
     axs[0].legend(fontsize=6, ncol=2)
-    err = res["replay"]["nominal"]["errors"]
+    err = replay["nominal"]["errors"]
     err = err[np.isfinite(err["ex"])]
     last = err.groupby("window").tail(1)
     worst = last.assign(e=np.sqrt(last.ex**2 + last.ey**2 + last.ez**2)).nlargest(3, "e")["window"]
     for k, wdw in enumerate(worst):
         for key, c in (("nominal", "grey"), ("extended", "C3")):
-            e = res["replay"][key]["errors"]
+            e = replay[key]["errors"]
             e = e[e["window"] == wdw]
             axs[1].plot(e["elapsed"], np.sqrt(e.ex**2 + e.ey**2 + e.ez**2), color=c, lw=1,
                         label=key if k == 0 else None)
@@ -406,17 +331,7 @@ def make_figures(outdir: Path, res: dict, vehicle, anatomy=None) -> dict:
     axs[1].set_ylabel("position error (m)")
     axs[1].set_title("three worst windows", fontsize=8)
     axs[1].legend(fontsize=7)
-    figures.save(fig, figdir / "replay_drift.png")
-    out["Open-loop replay: drift of the nominal and extended models"] = "replay_drift.png"
-
-    if anatomy is None:
-        anatomy_figure(prep, vehicle, figdir / "residual_anatomy.png")
-    else:
-        anatomy.collect(figdir / "residual_anatomy.png")
-    out["Residual anatomy: nominal residual against body velocity, height, thrust and the rotor speeds "
-        "(binned means, one colour per rotor)"] = \
-        "residual_anatomy.png"
-    return out
+    figures.save(fig, path)
 
 
 def anatomy_figure(prep, vehicle, path: Path) -> None:

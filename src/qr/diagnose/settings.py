@@ -17,6 +17,7 @@ from ..allowed import check_fields, check_known, setting, show
 from ..conventions import CHECKS
 from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
+from ..estimation.settings import DIAGNOSIS_FILTER
 from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
 
 DEFAULTS_FILE = "src/qr/diagnose/settings.py"
@@ -95,6 +96,6 @@ class DiagnoseConfig:
 class DiagnoseNode(DiagnoseConfig):
     """The config group ``diagnose``: the settings, and the keys read before them."""
 
-    filter: str = "auto"  # the filter config (conf/filter/) the flights are estimated with
+    filter: str = DIAGNOSIS_FILTER  # the filter config (conf/filter/) the flights are estimated with
     track: bool = False  # an MLflow run (the workflow turns it on; the CLI writes nothing outside OUTDIR)
 

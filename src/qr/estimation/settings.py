@@ -18,6 +18,11 @@ from .chain import DISCRETISATIONS
 
 FILTERS = ("position", "attitude", "motor")
 IMPLEMENTATIONS = ("fast", "reference")
+# The filter of the estimates a diagnosis reads, and of the start states qr evaluate rolls out from: the
+# default of diagnose.filter and evaluate.filter, and the workflow's filter stage makes its cross-fit
+# files with it (workflow/rules/filter.smk), so the diagnoses read them instead of filtering again.
+# ``auto`` tunes each flight's noise values by the innovations' likelihood (.tuning).
+DIAGNOSIS_FILTER = "auto"
 
 
 # q and r: a number (or attitude q: one or three); Any, since qr's own check (resolve) says what is wrong

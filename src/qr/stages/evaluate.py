@@ -133,7 +133,7 @@ def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, 
     values of the filter stage's ``report`` frozen, when given) or, with ``stored`` (the filter stage's
     cross-fit file, with ``report``), its estimate read from there where it matches.  The one path by
     which ``qr evaluate`` and ``qr learn residual`` get their windows."""
-    from ..diagnose.crossfit import Estimates, fixed_settings
+    from ..estimation.crossfit import Estimates, fixed_settings
     from ..estimation import estimate
     from ..segments import flight_segments
 

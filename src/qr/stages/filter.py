@@ -19,9 +19,9 @@ from .. import tracking
 from ..atomic import atomic_path, write_json
 from ..config import compose, hydra_app, to_dict
 from ..shipped import vehicle_file as find_vehicle
-from ..diagnose.crossfit import airborne_tuning, fixed_settings
 from ..errors import QrInputError
 from ..estimation import estimate
+from ..estimation.crossfit import airborne_tuning, fixed_settings, segment_estimates, write_segment_estimates
 from ..flight import read_flight
 from ..vehicle import load_vehicle
 
@@ -54,7 +54,7 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     ``track=False`` leaves the MLflow run to :func:`track_runs` (the workflow logs all flights'
     runs from one process: importing MLflow per job would cost more than filtering).
     ``crossfit_out``: also write every airborne segment's matched estimate and its even/odd
-    cross-fitting halves (:func:`qr.diagnose.crossfit.segment_estimates`), which the diagnoses read
+    cross-fitting halves (:func:`qr.estimation.crossfit.segment_estimates`), which the diagnoses read
     instead of filtering the flight again.
     """
     flight_path = Path(flight_path)
@@ -74,8 +74,6 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     with atomic_path(out, suffix=".parquet") as tmp:
         states.to_parquet(tmp, index=False)
     if crossfit_out is not None:
-        from ..diagnose.crossfit import segment_estimates, write_segment_estimates
-
         table, _ = segment_estimates(flight, vehicle, cfg, report)
         write_segment_estimates(table, crossfit_out, cfg, report, vehicle)
     write_json(nis_out, report)

@@ -57,10 +57,10 @@ def build_dataset(crossfit_files, names, vehicle_file, out) -> pd.DataFrame:
     """The learning table of a flight set from the filter stage's cross-fit files (their full-flight
     estimates: the states and matched rotor signals the diagnosis labels too), written to ``out``."""
     from .. import datasets
-    from ..diagnose.crossfit import full_estimates
+    from ..estimation.crossfit import Estimates
     from ..vehicle import load_vehicle
 
-    states = {name: full_estimates(path) for name, path in zip(names, crossfit_files)}
+    states = {name: Estimates(path).full() for name, path in zip(names, crossfit_files)}
     table = datasets.build_table(states, load_vehicle(vehicle_file))
     datasets.write_table(table, out)
     return table

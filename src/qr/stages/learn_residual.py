@@ -317,15 +317,15 @@ def main(flights, vehicle, out, rest, force: bool = False) -> None:
     from ..outputs import check_out_dir
 
     check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=(SWEEP_CSV, "multirun.yaml"))
-    if not any(o.split("=")[0].lstrip("+~") == "filter" for o in overrides):
-        # the filter the windows start from is evaluate.filter's, as in a single run (compose_stage)
-        from ..rollout import EvaluateNode
+    from ..config import selects_filter, stage_filter
 
-        given = [o.split("=", 1)[1] for o in overrides if o.split("=")[0].lstrip("+~") == "evaluate.filter"]
-        if given and "," in given[-1]:
+    if not selects_filter(overrides):
+        # the filter the windows start from is evaluate.filter's, as in a single run (compose_stage)
+        named = stage_filter("evaluate", overrides)
+        if "," in named:
             raise QrInputError("evaluate.filter", "a sweep over the filter is given as evaluate.filter",
                                "sweep it as filter=auto,smoother")
-        overrides = [*overrides, f"filter={given[-1] if given else EvaluateNode().filter}"]
+        overrides = [*overrides, f"filter={named}"]
     given = ["learn=residual", f"learn.flights=[{','.join(_quoted(f) for f in flights)}]",
              f"learn.vehicle={_quoted(vehicle)}", f"learn.out={_quoted(out)}", f"learn.force={str(force).lower()}",
              f"hydra.sweep.dir={_quoted(out)}", "hydra.sweep.subdir='job${hydra.job.num}'"]

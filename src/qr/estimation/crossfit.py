@@ -11,18 +11,31 @@ the noise settings of the full-flight filter): their estimation errors are
 independent, and effects are selected and fitted on labels from one half with
 regressors from the other (both pairings stacked).  The held-out evaluation uses
 the full-flight filter.
+
+This is the filter stage's product: it writes every segment's three estimates to one cross-fit file
+(:func:`segment_estimates`, :func:`write_segment_estimates`); :class:`Estimates` is the one reader of
+that file (the diagnosis, ``qr evaluate``, ``qr learn residual`` and the learning data set), and
+:func:`diagnosis_estimates` the one place a diagnosis gets its estimates: read where the file has them,
+else filtered by the same recipe (:func:`prepare_flight`).
 """
 
 from __future__ import annotations
 
 import copy
+import json
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from ..estimation import TUNED_NIS_NOTE, estimate, tuned_noise
+from ..atomic import atomic_path
+from ..errors import QrInputError
 from ..parallel import thread_map
+from ..segments import flight_segments
+from . import TUNED_NIS_NOTE, estimate, tuned_noise
 from .matched import add_matched_rotor_signals
+from .settings import resolve
+from .tuning import ORDER, corner_hz
 
 MEASURED = ["px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"]
 
@@ -47,9 +60,6 @@ def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1
     which ``inertia_error`` or ``thrust_gain`` would then "explain".  Rotor speeds
     are measured directly and precisely, so matching costs little noise.
     """
-    from ..estimation.settings import resolve
-    from ..estimation.tuning import ORDER, corner_hz
-
     cfg = resolve(fixed_settings(filter_cfg, report))
     q_att = float(np.exp(np.mean(np.log(np.atleast_1d(cfg["attitude"]["q"])))))
     f = min(corner_hz(cfg["position"]["q"], cfg["position"]["r"], ORDER["position"]),
@@ -88,8 +98,6 @@ MIN_SEGMENT_S = 1.0  # shorter segments are not written (no diagnosis setting us
 
 def key(filter_cfg: dict, report: dict, vehicle) -> str:
     """What the estimates depend on: the matched filter settings and the rotor-speed scale."""
-    import json
-
     return json.dumps({"filter": matched_settings(filter_cfg, report), "hover_speed": float(vehicle.hover_speed)},
                       sort_keys=True, default=str)
 
@@ -116,10 +124,6 @@ def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: b
     moved a hidden kz from 0.044 to 0.095).  The diagnosis on the command line tunes on the same
     rows (:func:`prepare_flight` on its longest segment first), so the filter stage and the command
     line freeze the same values.  None: nothing to tune, no vehicle, or a log that never flew."""
-    from ..errors import QrInputError
-    from ..estimation.settings import resolve
-    from ..segments import flight_segments
-
     if vehicle is None or not resolve(filter_cfg)["tune"]["enabled"]:
         return None
     try:
@@ -139,8 +143,6 @@ def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: d
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
     diagnosis's own recipe (:func:`prepare_flight`), the longest segment first, where a
     tuning filter is tuned."""
-    from ..segments import flight_segments
-
     tables = []
     for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):
         st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
@@ -149,18 +151,65 @@ def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: d
     return pd.concat(tables, ignore_index=True), report
 
 
-class Estimates:
-    """A cross-fit file opened for one diagnosis: the tables of a segment if the file has them and was
-    made with the same filter settings and rotor-speed scale (else None: the caller filters)."""
+@dataclass(frozen=True)
+class SegmentEstimate:
+    """One airborne, gap-free segment of a flight and its estimates: the full filter's and the
+    cross-fitting halves' (each table's ``attrs["flight"]`` is the flight's position: the diagnosis splits
+    a flight once, whatever its segments)."""
 
-    def __init__(self, path, filter_cfg: dict, report: dict, vehicle):
+    flight: int  # the flight's position among a diagnosis's flights
+    window: tuple[float, float]  # first and last stamp, the log's own time
+    rows: pd.DataFrame  # the measured rows the filters read
+    states: pd.DataFrame
+    halves: tuple[pd.DataFrame, pd.DataFrame]  # (even, odd)
+
+
+def diagnosis_estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, reports: list | None = None,
+                        stored: list | None = None, say=lambda msg: None) -> list[SegmentEstimate]:
+    """The estimates of every flight's used segments (``segments``: per flight, its
+    :class:`qr.segments.Segment` list), flights in order and each one's segments in time order.
+
+    ``reports`` / ``stored``: per flight, the filter stage's report and cross-fit file; a segment found
+    there with the same settings is read, else filtered (:func:`prepare_flight`, the longest segment
+    first: a tuning filter, ``filter=auto``, is tuned there once per flight).  The same numbers either way.
+    """
+    out = []
+    for i, used in enumerate(segments):
+        report = reports[i] if reports else None
+        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and report else None
+        for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
+            got = file.get(seg.window[0]) if file else None
+            if got:
+                (st, pair), source = got, "read from the filter stage"
+            else:
+                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
+                source = f"filter={filter_cfg.get('name', '?')}"
+            say(f"estimates of {names[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+                f"{source}")
+            for table in (st, *pair):
+                table.attrs["flight"] = i
+            out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
+    return sorted(out, key=lambda e: (e.flight, e.window[0]))
+
+
+class Estimates:
+    """The filter stage's cross-fit file, its one reader: every segment's full estimate and its even/odd
+    halves.  Given the filter settings, the report and the vehicle of a diagnosis, the file is read only
+    if it was made with the same matched settings and rotor-speed scale (else :attr:`ok` is False and
+    :meth:`get` None: the caller filters)."""
+
+    def __init__(self, path, filter_cfg: dict | None = None, report: dict | None = None, vehicle=None):
         import pyarrow.parquet as pq
 
-        meta = pq.read_schema(path).metadata or {}
-        self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, report, vehicle)
+        if filter_cfg is None:
+            self.ok = True
+        else:
+            meta = pq.read_schema(path).metadata or {}
+            self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, report, vehicle)
         self.table = pd.read_parquet(path) if self.ok else None
 
     def get(self, start: float):
+        """``(full, (even, odd))`` of the segment whose first stamp is ``start``, or None."""
         if not self.ok:
             return None
         rows = self.table[self.table["segment_start"] == start]
@@ -170,21 +219,17 @@ class Estimates:
                for p in PARTS]
         return out[0], (out[1], out[2])
 
-
-def full_estimates(path) -> pd.DataFrame:
-    """The full-flight ("full") estimates of every segment in a cross-fit file, in time order: the state
-    table the diagnosis builds its labels from (matched settings, matched rotor signals), which the
-    learning data set uses too, so both learn the same ``f_a`` and ``tau_a``."""
-    table = pd.read_parquet(path)
-    full = table[table["part"] == "full"].drop(columns=["segment_start", "part"])
-    return full.sort_values("t", kind="stable").reset_index(drop=True)
+    def full(self) -> pd.DataFrame:
+        """The full-flight ("full") estimates of every segment, in time order: the state table the diagnosis
+        builds its labels from (matched settings, matched rotor signals), which the learning data set uses
+        too, so both learn the same ``f_a`` and ``tau_a``."""
+        full = self.table[self.table["part"] == "full"].drop(columns=["segment_start", "part"])
+        return full.sort_values("t", kind="stable").reset_index(drop=True)
 
 
 def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, report: dict, vehicle) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
-
-    from ..atomic import atomic_path
 
     t = pa.Table.from_pandas(table, preserve_index=False)
     t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"qr.crossfit_key": key(filter_cfg, report, vehicle).encode()})

@@ -17,9 +17,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..estimation import position_kf
-from ..estimation.settings import resolve
-from ..estimation.tuning import ORDER
+from . import position_kf
+from .settings import resolve
+from .smoother import equilibration
+from .tuning import ORDER
 from ..flight import ROTORS
 from ..parallel import thread_map
 from ..states import U2_FORCE, U2_FORCE_RATE, U2_TORQUE, U2_TORQUE_RATE
@@ -29,8 +30,7 @@ def _smooth(t, y, q, r, discretisation):
     """Zero-lag estimates and rates of each column of ``y`` through the position-type chain smoother
     (order 4, the same as the position filter and the attitude ESKF's per-axis chain).  Columns with
     the same dropouts share one covariance recursion (one compiled pass for all four rotors)."""
-    from ..estimation import fast
-    from ..estimation.smoother import equilibration
+    from . import fast
 
     out, rate = np.full_like(y, np.nan), np.full_like(y, np.nan)
     valid = np.isfinite(y)

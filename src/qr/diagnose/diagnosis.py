@@ -1,0 +1,187 @@
+"""One diagnosis: :func:`run` turns the estimates of some flights into a :class:`Diagnosis`.
+
+Built by named steps, each returning a new value (nothing is edited in place):
+
+1. labels (:mod:`.labels`): every segment's residual force and torque, full-flight and cross-fitted;
+2. fit (:mod:`.fit`): the selection, the delay, the named set's parameters and standard errors;
+3. held-out checks (:mod:`.held_out`): what the held-out part does not support is not named; the named
+   model on the held-out part, and whether the model describes the flights at all;
+4. replay and rollout (:mod:`.replay`), the learned torque remainder and the check for structure beyond
+   the catalog (:mod:`.remainder`), the accelerometer (:mod:`.accelerometer`);
+5. what the named effects say of the vehicle file's own numbers (:mod:`.coefficients`).
+
+``diagnosis.json`` is :func:`qr.diagnose.document.document` of it, ``report.md`` and its figures
+:mod:`qr.diagnose.report`'s; the stage (:mod:`qr.stages.diagnose`) reads, runs, writes and tracks.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from ..config import to_dict
+from ..estimation.crossfit import SegmentEstimate
+from ..estimation.settings import resolve as resolve_filter
+from ..flight import hover_ratio
+from ..rollout import EvaluateConfig
+from ..vehicle import Vehicle
+from .accelerometer import accelerometer_check
+from .coefficients import coefficient_checks, evidence
+from .fit import Fit, NamedEffect, identify
+from .flights import Flights
+from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
+from .labels import Labels, make_labels
+from .remainder import TorqueRemainder, fit_torque_remainder, remainder
+from .replay import replay_all, rollout_all
+from .settings import DiagnoseConfig
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a diagnosis runs with: its settings, the rollout's, the seed, and the settings as given and
+    the filter's (recorded in ``diagnosis.json``)."""
+
+    diagnose: DiagnoseConfig
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    seed: int = 0
+    given: dict = field(default_factory=dict)  # the config group ``diagnose`` as composed
+    filter: dict = field(default_factory=dict)  # the filter settings the estimates were made with
+
+    @classmethod
+    def of(cls, tree) -> Settings:
+        """The settings of a composed config tree (:func:`qr.config.compose_stage`), every one checked."""
+        given, filter_cfg = to_dict(tree.diagnose), to_dict(tree.filter)
+        resolve_filter(filter_cfg)
+        return cls(DiagnoseConfig.from_dict(given), EvaluateConfig.from_dict(to_dict(tree.evaluate)), int(tree.seed),
+                   given, filter_cfg)
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What the nominal model gets wrong on some flights, the causes named, the extended model, the gain."""
+
+    flights: Flights  # names, rows, segments, convention checks
+    settings: Settings
+    labels: Labels  # the residual labels, the designs at the named delay
+    fit: Fit  # the selection and what it names: parameters, s.e., held-out shares
+    not_named: dict[str, str]  # effect -> why it is not named though the selection chose it
+    held_out: HeldOutCheck  # the named model on the held-out part; misfit: the model does not describe it
+    replay: dict  # per model (nominal, extended): errors, summary at the horizon, growth
+    rollout: dict  # the multi-step rollout from the held-out starts, and the share of the residual explained
+    remainder: dict  # structure beyond the catalog
+    accelerometer: dict | None  # the force label against the accelerometer, where the log has one
+    vehicle_file: list[dict]  # statements about the vehicle file's own numbers, where the data identify them
+    vehicle_file_unresolved: list[dict]  # the gross factors not stated, each with why
+    extended_vehicle: Vehicle  # the nominal vehicle plus the named effects (and the torque remainder)
+    torque_remainder: TorqueRemainder | None = None  # the learned torque remainder (a hybrid), where asked
+
+    @property
+    def effects(self) -> list[NamedEffect]:
+        return self.fit.effects
+
+    @property
+    def described(self) -> bool:
+        return not self.held_out.misfit
+
+    @property
+    def verdict(self) -> str:
+        """The answer in one paragraph, from the numbers it states."""
+        said = " ".join(c["statement"][0].upper() + c["statement"][1:] + "." for c in self.vehicle_file)
+        return _verdict(self) + (" " + said if said else "")
+
+
+def _verdict(d: Diagnosis) -> str:
+    h, misfit = d.held_out, d.held_out.misfit
+    if misfit:
+        return (f"The model does not describe this flight: even extended, the held-out residual is "
+                f"{100 * misfit['force_of_weight']:.0f} % of the weight in force and "
+                f"{100 * misfit['torque_of_weight_at_arm']:.0f} % of the weight's torque at the arm "
+                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so nothing is named. Look at the "
+                "log's frames and units (the convention checks in diagnosis.json), its time stamps and offsets "
+                "(qr ingest prints them), the vehicle file (mass, thrust_coeff, rotor_speed_unit, layout) and "
+                "events no model holds (ground contact, a tether, a crash).")
+    if not d.effects:
+        rem = d.remainder
+        tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
+                if rem.get("structure_remains") else "")
+        # "up to noise" only when the residual is at the noise floor's level (weighted loss ~ 1)
+        fit = ("the nominal model explains this flight up to noise" if h.nominal_loss < 2 else
+               "no candidate effect explains the residual, which is well above noise")
+        return (f"Nothing named: {fit} (weighted residual {h.nominal_loss:.2f} x the noise floor's variance on "
+                f"held-out data).{tail}")
+    names = ", ".join(e.name for e in d.effects)
+    gain = 1 - h.extended_loss / h.nominal_loss
+    return (f"Named {names}; the extended model removes {100 * gain:.0f} % of the nominal model's weighted "
+            f"held-out residual variance (now {h.extended_loss:.2f} x the noise floor's variance).")
+
+
+def _quiet(msg: str) -> None:
+    pass
+
+
+def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: Settings, vehicle_file=None,
+        progress=None, on_labels=None) -> Diagnosis:
+    """Diagnose ``flights`` from their segments' ``estimates`` (:func:`qr.estimation.crossfit.diagnosis_estimates`).
+
+    ``vehicle_file``: how statements about the vehicle file name it (default: the vehicle's name);
+    ``progress(msg)``: each step as it starts; ``on_labels(prep)``: called with the full-flight labels
+    as soon as they exist (the report's residual anatomy is drawn from them while the fit runs).
+    """
+    say, cfg = progress or _quiet, settings.diagnose
+    states, rows = [e.states for e in estimates], [e.rows for e in estimates]
+    labels = make_labels(states, [e.halves for e in estimates], vehicle, cfg, on_labels)
+    fitted = identify(labels, vehicle, cfg, settings.seed, say)
+    # (a refinement of ``fitted`` by simulation error belongs here: it returns a Fit like it)
+    supported, not_named = held_out_support(fitted, vehicle, cfg, settings.seed, say)
+    final, held_out, dropped = check_held_out(supported, vehicle)
+    effects = [e.in_vehicle() for e in final.effects]
+    say("replay")
+    replay = replay_all(states, rows, vehicle, effects, cfg.horizon_s, final.labels.full.windows)
+    extended = vehicle.with_changes(effects=vehicle.effects + effects)
+    torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say)
+    rollout, beyond, accelerometer = _after_the_fit(states, rows, vehicle, final, held_out, effects, hybrid,
+                                                    settings, say)
+    statements, unresolved = _vehicle_file(final, vehicle, vehicle_file or vehicle.name, flights)
+    return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
+                     beyond, accelerometer, statements, unresolved, hybrid or extended, torque_rem)
+
+
+def _torque_remainder(final: Fit, extended: Vehicle, vehicle, flights: Flights, ridge: float,
+                      say) -> tuple[TorqueRemainder | None, Vehicle | None]:
+    """The learned torque remainder (``ridge`` > 0) and the extended vehicle carrying it (the hybrid)."""
+    if ridge <= 0:
+        return None, None
+    say("fitting the learned torque remainder")
+    rem = fit_torque_remainder(final, vehicle, ridge)
+    note = (f"learned on the training part of {', '.join(Path(f).name for f in flights.names)} (ridge {ridge:g}): "
+            "not a physical effect")
+    return rem, extended.with_changes(torque_remainder=rem.in_vehicle(vehicle, note))
+
+
+def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[list[dict], list[dict]]:
+    """Statements about the vehicle file's own numbers (:func:`coefficient_checks`), from the parameters
+    as diagnosis.json states them and the log's hover balance."""
+    hover = hover_ratio(pd.concat(flights.measured, ignore_index=True), vehicle)
+    return coefficient_checks([e.stated() for e in final.effects], vehicle, vehicle_file,
+                              evidence(final.stats, final.named, final.fixed), hover)
+
+
+def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,
+                   say) -> tuple[dict, dict, dict | None]:
+    """(rollout, structure beyond the catalog, accelerometer check).  The check for structure beyond the
+    catalog (numpy) runs beside the rollout (compiled, the GIL released): neither reads what the other
+    writes."""
+    cfg, ecfg, full = settings.diagnose, settings.evaluate, final.labels.full
+    with ThreadPoolExecutor(1) as pool:
+        checked = pool.submit(remainder, final, vehicle, cfg)
+        say("rolling out the nominal and the extended model on the held-out part")
+        rollout = rollout_all(states, rows, vehicle, effects, full.windows, ecfg.horizon, ecfg.max_input_gap, 0.0,
+                              hybrid)
+        y_test = full.y[full.test]
+        rollout = {**rollout, "explained": summed_r2(full, y_test, y_test - held_out.prediction, ecfg.horizon)}
+        accelerometer = accelerometer_check(states, rows, vehicle, cfg.trim_s)
+        say("checking for structure beyond the catalog")
+        return rollout, checked.result(), accelerometer

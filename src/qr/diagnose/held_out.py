@@ -1,0 +1,228 @@
+"""The held-out checks: what the named set explains on data the fit never saw, and whether the model
+describes the flights at all.
+
+The third step of :func:`qr.diagnose.run`.  On the cross-fitted held-out rows (as the fit: with one
+filter's rotor speeds in label and regressor, an effect on the rotor map scales the label's own rotor
+noise and looks worse than it is), a named effect the held-out part does not support is dropped, one at
+a time (:func:`held_out_support`, :func:`unsupported`).  On the full-flight held-out rows, the nominal
+and the extended residual, the noise floor and the residual anatomy (:func:`check_held_out`); a flight
+whose residual stays beyond ``MISFIT`` of the vehicle's scales is one the model does not describe, and
+nothing is named on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..identification.edge import EDGE, Margins
+from ..identification.normal_equations import BlockStats, Columns, fit
+from ..effects import Signals
+from . import slow_torque as slow_mod
+from .core import block_stats, extended_prediction, predict, rms
+from .fit import Fit, standard_errors
+from .labels import Prepared, weights
+from .settings import DiagnoseConfig
+
+AXES_SAID = ("f_x", "f_y", "f_z", "τ_x", "τ_y", "τ_z")
+# A rigid-body model with the catalog's effects describes a flight whose held-out residual, after the best
+# extension, stays below this share of the weight (force) and of the weight's torque at the arm (torque):
+# drag, biases and rotor errors of any real quadrotor leave a few per cent (the measured Crazyflie flights:
+# 1-7 %); a log in another frame or unit, a tether, a crash leave tens of per cent or more.
+MISFIT = 0.1
+
+
+def model_misfit(resid: np.ndarray, vehicle) -> dict | None:
+    """Where the held-out residual (N, 6) is beyond ``MISFIT`` of the vehicle's scales: the shares; else None."""
+    arm = float(np.max(np.hypot(*vehicle.rotors.positions.T)))
+    weight = vehicle.mass * 9.81
+    force = float(np.sqrt(np.nanmean(np.nansum(resid[:, :3] ** 2, axis=1)))) / weight
+    torque = float(np.sqrt(np.nanmean(np.nansum(resid[:, 3:] ** 2, axis=1)))) / (weight * arm)
+    if max(force, torque) <= MISFIT:
+        return None
+    return {"force_of_weight": force, "torque_of_weight_at_arm": torque, "limit": MISFIT}
+
+
+class HeldOut:
+    """The held-out rows of a prepared data set, and what a named set explains there."""
+
+    def __init__(self, prep: Prepared, vehicle, force_only, fixed: dict, slow: dict | None):
+        self.prep, self.vehicle, self.force_only, self.fixed, self.slow = prep, vehicle, force_only, fixed, slow
+        self.idx = np.flatnonzero(prep.test)
+        self.s = prep.design_s.take(self.idx)
+        self.y = prep.y[self.idx]
+        self.w = weights(prep.sd)[self.idx]
+        self.base = float(np.nanmean(self.w * self.y**2))
+        half = (self.idx >= prep.pair_offset) if prep.pair_offset else np.zeros(len(self.idx), bool)
+        self.group = prep.flight[self.idx] * 2 + half  # a window never joins the two cross-fitting halves
+
+    def residual(self, named, theta) -> np.ndarray:
+        return self.y - extended_prediction(self.prep, self.vehicle, named, theta, self.idx, self.force_only)
+
+    def summed(self, r: np.ndarray) -> float:
+        """The torque residual summed over the slow balance's horizon (what it judges on), in noise units."""
+        sums, _ = slow_mod.window_sums(r[:, 3:6], self.group, self.slow["horizon"])
+        return float(np.sum(sums**2 / np.nanmedian(self.prep.sd[self.idx, 3:6], axis=0) ** 2))
+
+    def explained(self, named, theta, refit) -> dict:
+        """Each effect's share of the held-out loss: the named set refitted without it, against the whole
+        set; an effect the slow torque balance named (``fixed``), its share of the held-out torque
+        residual summed over the balance's horizon, as it was judged."""
+        resid = self.residual(named, theta)
+        ext = float(np.nanmean(self.w * resid**2))
+        out = {}
+        for e in named:
+            rest = [x for x in named if x != e]
+            r_rest = self.y - predict(self.s, self.vehicle, rest, refit(rest) if rest else np.zeros(0),
+                                      self.force_only)
+            if e in self.fixed:
+                out[e] = (self.summed(r_rest) - self.summed(resid)) / self.summed(self.y)
+            else:
+                out[e] = float((np.nanmean(self.w * r_rest**2) - ext) / self.base)
+        return out
+
+
+def unsupported(named, explained, y, resid, w, min_gain, resid_without) -> tuple[str, str] | None:
+    """The named effect the held-out data do not support, and why; None if every one is.
+
+    An effect whose held-out share is zero or less explains nothing there (the lowest such first).  A
+    held-out axis the named set leaves worse than the nominal model, by more than ``min_gain`` of its
+    loss and by more than the noise floor's variance (the weights' unit; below it, regressor noise the
+    extended model adds on an axis the nominal model already fits to noise): the effect whose removal helps
+    that axis most (two effects that cancel where the flight spends its time fit the training part's
+    small differences, and the held-out part pays for it).
+    """
+    if not named:
+        return None
+    weak = min(named, key=lambda e: (explained[e], e))
+    if explained[weak] <= EDGE:  # (a share within numerical noise of zero is none)
+        return weak, f"it explains {100 * explained[weak]:.2g} % of the held-out residual"
+    nominal, ext = np.nanmean(w * y**2, axis=0), np.nanmean(w * resid**2, axis=0)
+    worse = np.flatnonzero([Margins().at_least(a, (1 + min_gain) * b, on_edge=True) and
+                            Margins().at_least(a - b, 1.0, on_edge=True) for a, b in zip(ext, nominal)])
+    if not worse.size:
+        return None
+    j = int(worse[np.argmax(ext[worse] / nominal[worse])])
+    helps = {e: float(np.nanmean(w[:, j] * resid_without([x for x in named if x != e])[:, j] ** 2)) for e in named}
+    e = min(helps, key=helps.get)
+    return e, (f"with it the held-out {AXES_SAID[j]} residual is {ext[j] / nominal[j]:.3g} x the nominal model's "
+               f"({helps[e] / nominal[j]:.3g} x without it)")
+
+
+# An axis's residual variance must exceed the noise floor's by this fraction of it before the anatomy
+# shares it out: the floor is an estimate, and a few per cent of it is within its own uncertainty.
+ANATOMY_MIN_SIGNAL = 0.05
+
+
+def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.ndarray, vehicle,
+            candidates: list[str], force_only=()) -> dict:
+    """Share of each axis's held-out residual variance that each candidate explains alone (fit on train).
+
+    Net of the noise floor: a share of 1 would leave only noise.  Negative: it does worse than nothing.
+    NaN for an axis at the noise floor: its residual variance exceeds the noise variance by less than
+    ``ANATOMY_MIN_SIGNAL`` of it, so there is nothing above noise to share out (dividing by that
+    difference would print noise as huge shares).
+    """
+    out = {}
+    base = np.nanmean(y_test**2, axis=0)
+    noise = np.nanmean(sd_test**2, axis=0)
+    signal = base - noise
+    above = signal > ANATOMY_MIN_SIGNAL * noise
+    for e in candidates:
+        pred = predict(s_test, vehicle, [e], fit(stats, [e]), force_only)
+        gain = base - np.nanmean((y_test - pred) ** 2, axis=0)
+        out[e] = np.divide(gain, signal, out=np.full(len(gain), np.nan), where=above).tolist()
+    return out
+
+
+def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) -> dict:
+    """Share of the held-out residual the extended model explains, per axis: sample by sample, and summed
+    over windows of ``horizon`` samples (what a rollout integrates: a slow torque error held for the
+    horizon), never across a segment's edge; windows holding a missing label are left out."""
+    test = np.flatnonzero(prep.test)
+    out = {"one_step": [], "summed": []}
+    num1, den1 = np.nansum(resid**2, axis=0), np.nansum(y**2, axis=0)
+    out["one_step"] = (1 - num1 / np.where(den1 > 0, den1, np.nan)).tolist()
+    k = y.shape[1]
+    sums, _ = slow_mod.window_sums(np.hstack([y, resid]), prep.flight[test], horizon)
+    den, num = (sums[:, :k] ** 2).sum(axis=0), (sums[:, k:] ** 2).sum(axis=0)
+    out["summed"] = (1 - num / np.where(den > 0, den, np.nan)).tolist()
+    out["horizon"] = int(horizon)
+    return out
+
+
+def _without(f: Fit, e: str, vehicle, cfg: DiagnoseConfig, seed: int) -> Fit:
+    """``f`` without effect ``e``: the rest refitted, their s.e. from their own bootstrap."""
+    old = Columns.of(f.named)
+    named = [x for x in f.named if x != e]
+    if e == "actuator_delay":  # the other effects act on the rotor map on time again
+        labels = f.labels.at_delay(vehicle, f.delay_first, shift=0.0)
+        stats = block_stats(labels.cross, vehicle, Columns.of(f.candidates, f.force_only))
+        f = replace(f, labels=labels, stats=stats, boot_stats=stats)
+    theta, se = f.refit(named), f.se[old.index(named)]
+    own = [x for x in named if x not in f.fixed]
+    if own:  # standard errors of the smaller set's own fit, as for the named set
+        se_own, own_cols, new = standard_errors(f.boot_stats, own, cfg.selection.bootstrap, seed), Columns.of(own), \
+            Columns.of(named)
+        for x in own:
+            se[new.slices[x]] = se_own[own_cols.slices[x]]
+    return replace(f, named=named, theta=theta, se=se)
+
+
+def held_out_support(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int, say) -> tuple[Fit, dict[str, str]]:
+    """The fit of what the held-out part supports (each effect's share in ``explained``), and the named
+    effects it does not support, each with why (dropped one at a time, the named set refitted each time)."""
+    judge = HeldOut(f.labels.cross, vehicle, f.force_only, f.fixed, f.slow)
+    dropped = {}
+    while True:
+        explained = judge.explained(f.named, f.theta, f.refit)
+        why = unsupported(f.named, explained, judge.y, judge.residual(f.named, f.theta), judge.w,
+                          cfg.selection.min_gain, lambda rest: judge.residual(rest, f.refit(rest)))
+        if not why:
+            return replace(f, explained=explained), dropped
+        e, reason = why
+        dropped[e] = reason
+        say(f"not named: {e} ({reason})")
+        f = _without(f, e, vehicle, cfg, seed)
+        if e == "actuator_delay":
+            judge = HeldOut(f.labels.cross, vehicle, f.force_only, f.fixed, f.slow)
+
+
+@dataclass(frozen=True)
+class HeldOutCheck:
+    """The named model on the held-out rows of the full-flight labels (per axis: f_x, f_y, f_z, τ_x, τ_y, τ_z)."""
+
+    nominal_rmse: list[float]
+    extended_rmse: list[float]
+    noise_floor_rmse: list[float]
+    nominal_loss: float  # weighted by the noise floor: 1 = the residual is noise
+    extended_loss: float
+    prediction: np.ndarray  # the named effects' terms on the held-out rows
+    misfit: dict | None  # where the model does not describe the flights (:func:`model_misfit`)
+    anatomy: dict  # candidate -> share of each axis's held-out residual it explains alone
+
+
+MISFIT_REASON = "the model does not describe this flight, so no effect is a finding"
+
+
+def check_held_out(f: Fit, vehicle) -> tuple[Fit, HeldOutCheck, dict[str, str]]:
+    """The held-out check of ``f``; where the model does not describe the flights, nothing is named (the
+    fit emptied, each effect it named given :data:`MISFIT_REASON`)."""
+    prep = f.labels.full
+    test = np.flatnonzero(prep.test)
+    y_test, sd_test, w_test = prep.y[test], prep.sd[test], weights(prep.sd)[test]
+    pred = extended_prediction(prep, vehicle, f.named, f.theta, test, f.force_only)
+    misfit = model_misfit(y_test - pred, vehicle)
+    dropped = {}
+    if misfit:  # nothing the catalog explains is a finding on a flight the model does not describe
+        dropped = {e: MISFIT_REASON for e in f.named}
+        f = replace(f, named=[], theta=np.zeros(0), se=np.zeros(0))
+        pred = np.zeros_like(y_test)
+    resid = y_test - pred
+    return f, HeldOutCheck(
+        nominal_rmse=rms(y_test).tolist(), extended_rmse=rms(resid).tolist(), noise_floor_rmse=rms(sd_test).tolist(),
+        nominal_loss=float(np.nanmean(w_test * y_test**2)), extended_loss=float(np.nanmean(w_test * resid**2)),
+        prediction=pred, misfit=misfit,
+        anatomy=anatomy(f.stats, prep.design_s.take(test), y_test, sd_test, vehicle, f.candidates, f.force_only)), \
+        dropped
