@@ -170,3 +170,70 @@ def test_write_json_is_strict_for_everyone(tmp_path):
 
     write_json(tmp_path / "x.json", {"a": math.nan, "b": [1.0, -math.inf, {"c": math.inf}], "d": np.float64(2.5)})
     assert _strict((tmp_path / "x.json").read_text()) == {"a": None, "b": [1.0, None, {"c": None}], "d": 2.5}
+
+
+def _verdict_numbers(doc):
+    """Every number the verdict states, checked against the numbers diagnosis.json holds."""
+    import re
+
+    v = doc["verdict"]
+    named = [e["name"] for e in doc["effects"]]
+    nom, ext = doc["losses"]["nominal"], doc["losses"]["extended"]
+    if not doc["described"]:
+        m = re.search(r"held-out residual is (\d+) % of the weight in force and (\d+) % of the weight's torque at the "
+                      r"arm \(a rigid-body model leaves under (\d+) %\)", v)
+        mf = doc["misfit"]
+        assert m and int(m[1]) == round(100 * mf["force_of_weight"]) and int(m[2]) == round(
+            100 * mf["torque_of_weight_at_arm"]) and int(m[3]) == round(100 * mf["limit"]), v
+        assert mf["force_of_weight"] > mf["limit"] or mf["torque_of_weight_at_arm"] > mf["limit"]
+        assert not named
+    elif named:
+        m = re.search(r"Named (.*?); the extended model removes (-?\d+) % of the nominal model's weighted held-out "
+                      r"residual variance \(now ([\d.]+) x the noise floor's variance\)", v)
+        assert m and m[1].split(", ") == named, v
+        assert int(m[2]) == round(100 * (1 - ext / nom)) and float(m[3]) == pytest.approx(ext, abs=0.006), (v, nom, ext)
+    else:
+        m = re.search(r"Nothing named: (.*) \(weighted residual ([\d.]+) x the noise floor's variance", v)
+        assert m and float(m[2]) == pytest.approx(nom, abs=0.006)
+        assert ("up to noise" in m[1]) == (nom < 2)
+    for c in doc["vehicle_file"]:  # "looks xF too large/small": F the stated factor's size
+        m = re.search(r"looks x([\d.]+) too (large|small)", c["statement"])
+        f = c["factor"]
+        assert m and float(m[1]) == pytest.approx(f if f > 1 else 1 / f, rel=0.05) and (m[2] == "small") == (f > 1)
+        assert c["statement"][0].upper() + c["statement"][1:] in v
+
+
+@pytest.mark.parametrize("case", ["named", "nothing", "not described", "vehicle file"])
+def test_every_number_the_verdict_states_is_the_documents(case, tmp_path, capsys):
+    """The verdict (report.md's first line, `qr diagnose`'s last) is built from the numbers it states:
+    read back, each equals diagnosis.json's own (losses, misfit shares, factors, names)."""
+    import json
+
+    import yaml
+
+    from conftest import VEHICLES, run_cli
+
+    effects = {"named": ["--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.15"], "nothing": [],
+               "not described": ["--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.15"], "vehicle file": []}[case]
+    assert run_cli(["synth", "--vehicle", VEHICLES / "asctec_hummingbird.yaml", "--duration", "40", "--seed", "5",
+                    *effects, "--out", tmp_path / "s"], capsys)[0] == 0
+    flight, vehicle, extra = tmp_path / "s" / "flight.csv", tmp_path / "s" / "vehicle.yaml", []
+    if case == "not described":  # written scalar-last, the check skipped: the model cannot describe it
+        import pandas as pd
+
+        df = pd.read_csv(flight)
+        df[["qw", "qx", "qy", "qz"]] = df[["qx", "qy", "qz", "qw"]].to_numpy()
+        df.to_csv(flight, index=False)
+        extra = ["diagnose.skip_checks=[thrust_axis,rotor_layout]"]
+    if case == "vehicle file":  # the file's C_T 1.8 x the true one
+        raw = yaml.safe_load(vehicle.read_text())
+        raw["thrust_coeff"] *= 1.8
+        vehicle = tmp_path / "ct.yaml"
+        vehicle.write_text(yaml.safe_dump(raw))
+    status, _, err = run_cli(["diagnose", flight, "--vehicle", vehicle, "--out", tmp_path / "d", *extra], capsys)
+    assert status == 0, err
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert doc["described"] == (case != "not described")
+    assert bool(doc["vehicle_file"]) == (case == "vehicle file")
+    _verdict_numbers(doc)
+    assert f"**{doc['verdict']}**" in (tmp_path / "d" / "report.md").read_text()

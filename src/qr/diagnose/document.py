@@ -108,6 +108,8 @@ def stated(d: Diagnosis) -> dict:
         "anatomy": {k: _r(v, 4) for k, v in h.anatomy.items()},
         "selection": _selection(d),
         "verdict": d.verdict,
+        # the held-out residual's weighted mean square (noise-variance units) the verdict states
+        "losses": {"nominal": float(f"{h.nominal_loss:.6g}"), "extended": float(f"{h.extended_loss:.6g}")},
         "described": d.described,
         **({"misfit": {k: float(f"{v:.4g}") for k, v in h.misfit.items()}} if h.misfit else {}),
         "config": d.settings.given,
