@@ -175,9 +175,22 @@ def _window(step: float) -> int:
 
 
 def _smooth(y: np.ndarray, step: float, deriv: int = 0) -> np.ndarray:
-    from scipy.signal import savgol_filter
+    """Savitzky-Golay smoothing or derivative (cubic, ``_window`` samples) along axis 0; NaN within half a
+    window of either end, which every check drops.  The local cubic's least-squares row, not
+    ``scipy.signal.savgol_filter``: importing scipy.signal (it pulls scipy.stats) cost a third of a second
+    of every ``qr diagnose`` (benchmarks/diagnose.py), and the edges are never used here."""
+    from math import factorial
 
-    return savgol_filter(y, _window(step), 3, deriv=deriv, delta=step, axis=0)
+    m = _window(step)
+    h = m // 2
+    x = np.arange(-h, h + 1, dtype=float)
+    coeff = np.linalg.pinv(np.vander(x, 4, increasing=True))[deriv] * factorial(deriv) / step**deriv
+    y = np.asarray(y, float)
+    out = np.full(y.shape, np.nan)
+    if len(y) >= m:
+        windows = np.lib.stride_tricks.sliding_window_view(y, m, axis=0)  # (N - m + 1, ..., m)
+        out[h:len(y) - h] = windows @ coeff
+    return out
 
 
 def _unit(q: np.ndarray) -> np.ndarray:

@@ -14,6 +14,7 @@ from matplotlib.ticker import MaxNLocator
 from ..atomic import write_text
 from ..effects import CATALOG
 from ..report import figures
+from ..report.background import BackgroundFigure
 from ..rollout import table
 from .accelerometer import statement as accelerometer_statement
 from .core import AXES
@@ -270,11 +271,15 @@ def make_figures(outdir: Path, d: Diagnosis, vehicle, anatomy=None) -> dict:
     figdir = outdir / "figures"
     figdir.mkdir(exist_ok=True)
     out = {}
-    residual_figure(d, figdir / "residual_vs_effects.png")
+    # the two figures side by side: the residual's in a forked child (qr.report.background), the replay's here
+    residual = BackgroundFigure(lambda path: residual_figure(d, path))
+    try:
+        replay_figure(d.replay, figdir / "replay_drift.png")
+    finally:
+        residual.collect(figdir / "residual_vs_effects.png")
     out["Held-out residual force and torque of the nominal model (grey; flights one after another, shaded "
         "alternately) and what the named effects explain (red): where red follows grey, a named effect "
         "accounts for it"] = "residual_vs_effects.png"
-    replay_figure(d.replay, figdir / "replay_drift.png")
     out["Open-loop replay: drift of the nominal and extended models"] = "replay_drift.png"
     if anatomy is None:
         anatomy_figure(d.labels.full, vehicle, figdir / "residual_anatomy.png")

@@ -29,7 +29,6 @@ the error (4.24) and the update (4.25–4.27) with filterpy's Joseph form of 4.2
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from ..frames import quat_multiply, quat_to_rot, rotation, skew
@@ -91,6 +90,8 @@ def rot_increment(psi: np.ndarray, dt: float, discretisation: str) -> np.ndarray
 
 
 def quat_exp(phi: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation  # on use: scipy.spatial takes ~0.1 s to import
+
     return Rotation.from_rotvec(phi).as_quat(scalar_first=True)
 
 

@@ -61,7 +61,10 @@ def _run_diagnosis(flights, vehicle_file, out, overrides, track, log, return_res
                    estimates, background):
     out = check_out_dir(out, inputs=[*flights, vehicle_file], force=force, expected=OUTPUTS)
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
-    settings, read, work, vehicle = _read(flights, vehicle_file, overrides, reports, estimates, say)
+    plotting = _Plotting() if figures else None
+    settings, read, work, vehicle = _read(flights, vehicle_file, overrides, reports, estimates, say, plotting)
+    if plotting:
+        plotting.ready()  # before any fork: a child must not inherit an import half done
     diagnosis = _run(work, read, vehicle, vehicle_file, settings, say, background if figures else None)
     doc = _write(out, diagnosis, vehicle, figures, background[0] if background else None, force)
     if track if track is not None else bool(settings.given.get("track", False)):
@@ -71,9 +74,30 @@ def _run_diagnosis(flights, vehicle_file, out, overrides, track, log, return_res
     return (doc, diagnosis) if return_result else doc
 
 
-def _read(flights, vehicle_file, overrides, reports, estimates, say):
+class _Plotting:
+    """matplotlib and the report's figures imported on a thread while the filters run (their compiled
+    kernels release the GIL): a third of a second a user no longer waits for."""
+
+    def __init__(self):
+        import threading
+
+        self._thread = threading.Thread(target=self._load, daemon=True)
+
+    @staticmethod
+    def _load():
+        from ..diagnose import report  # noqa: F401  (imports qr.report.figures, matplotlib)
+
+    def start(self):
+        self._thread.start()
+
+    def ready(self):
+        if self._thread.is_alive() or self._thread.ident is not None:
+            self._thread.join()
+
+
+def _read(flights, vehicle_file, overrides, reports, estimates, say, plotting=None):
     """(settings, the flights checked, every used segment's estimates, the vehicle): the estimates read
-    from the filter stage's cross-fit files or filtered."""
+    from the filter stage's cross-fit files or filtered (``plotting`` imported meanwhile)."""
     from ..flight import read_flight
 
     # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
@@ -86,6 +110,8 @@ def _read(flights, vehicle_file, overrides, reports, estimates, say):
 
     settings = Settings.of(_compose(overrides))
     read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say)
+    if plotting:
+        plotting.start()
     work = diagnosis_estimates([fs.used for fs in read.split], [Path(f).name for f in flights], vehicle,
                                settings.filter, reports, estimates, say)
     return settings, read, work, vehicle
