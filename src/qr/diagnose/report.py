@@ -321,6 +321,10 @@ def write_report(outdir: Path, doc: dict, res: dict, figs: dict) -> None:
                  "rolled out as `hybrid` above. Held-out torque RMSE x / y / z (N m): extended "
                  + " / ".join(f"{x:.2e}" for x in rem["extended_torque_rmse"]) + ", hybrid "
                  + " / ".join(f"{x:.2e}" for x in rem["hybrid_torque_rmse"]) + ".\n")
+    if doc.get("refine"):  # qr.diagnose.refine (diagnose.refine=rollout)
+        from .refine import report_lines
+
+        L += report_lines(doc["refine"])
     acc = doc.get("accelerometer_check")
     if acc:
         from .accelerometer import statement

@@ -162,6 +162,13 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
         res["accelerometer_check"] = accelerometer_check(states, pieces, vehicle, dcfg.trim_s)
         say("checking for structure beyond the catalog")
         res["remainder"] = checked.result()
+    if dcfg.refine == "rollout":  # physical parameters by simulation error (qr.diagnose.refine)
+        from ..diagnose.refine import refine_diagnosis
+
+        res["refine"] = refine_diagnosis(states, pieces, res["prep"].windows, vehicle, res["effects"], dcfg, ecfg,
+                                         int(cfg.seed), say)
+        ext = (hybrid or ext).with_changes(effects=vehicle.effects + res["refine"].effects(extended_effects(res["effects"])))
+        hybrid = ext if hybrid else None
     doc = to_json(res, [str(f) for f in flights], dcfg_dict)  # each flight as the user gave it
     doc["filter"] = to_dict(cfg.filter)
     doc["accelerometer_check"] = res["accelerometer_check"]
@@ -170,6 +177,8 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
         doc["torque_remainder"] = {"ridge": rem["ridge"], "features": FEATURES,
                                    "extended_torque_rmse": rem["extended_torque_rmse"],
                                    "hybrid_torque_rmse": rem["hybrid_torque_rmse"]}
+    if "refine" in res:
+        doc["refine"] = res["refine"].to_json()
     doc.update(segments_json(doc["flights"], split))
     doc["conventions"] = checks
     hover = hover_ratio(pd.concat(measured, ignore_index=True), vehicle)
@@ -186,7 +195,9 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
         write_json(tmp / "diagnosis.json", strict)
         save_vehicle(ext, tmp / "extended_vehicle.yaml",
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
-                            "the nominal parameters plus the named effects")
+                            "the nominal parameters plus the named effects"
+                            + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
+                               "(diagnosis.json: refine), each in its physical range" if "refine" in res else ""))
     if track if track is not None else bool(cfg.diagnose.get("track", False)):
         track_diagnosis(out.name, doc, flights, out, {"nominal_loss": res["nominal_loss"],
                                                       "extended_loss": res["extended_loss"]})
