@@ -16,12 +16,12 @@ with ``e`` the rollout's error vectors of position, velocity, attitude (the rota
 0.3 rad) and body rate, ``ref_s`` the benchmark baseline's (``rate_frozen``) mean error over h on the
 same windows (the signals on one scale), N the number of windows.  The rollout is the compiled one of
 ``qr evaluate`` (:func:`qr.sim.plant.rigid_body_rk4`: RK4 per log step, measured rotor speeds held, the
-delay applied to the inputs); its Jacobian is by central differences, every parameter's perturbed
+delay applied to the inputs); its Jacobian is by forward differences, every parameter's perturbed
 rollouts of a window in one pass; the minimiser is Levenberg–Marquardt with the step solved within the
 bounds (:func:`qr.identification.box_qp.box_qp`).
 
-Standard errors: the Gauss–Newton covariance from that Jacobian, as a sandwich clustered by time
-blocks (``A⁻¹ B A⁻¹``, ``A = JᵀWJ``, ``B = C/(C−1) Σ_c g_c g_cᵀ`` with ``g_c`` the gradient of block c):
+Standard errors: the Gauss–Newton covariance from that Jacobian, as a sandwich (``A⁻¹ B A⁻¹``, ``A = JᵀWJ``, B the long-run covariance of the windows' own gradients,
+Bartlett weights over the windows starting within ``block_s``, at least 4 horizons, of each other):
 neighbouring windows share samples, and a rollout's errors are correlated over the whole horizon, so
 the textbook ``σ² A⁻¹`` would be far too small (its coverage on synthetic flights:
 ``tests/diagnose/test_refine.py``, ``benchmarks/refine_coverage.py``).  A parameter held at a bound has
@@ -66,7 +66,7 @@ class RefineSettings:
     max_input_gap: int = 2
     stride: int = 5  # every stride-th training start (neighbouring windows share H − stride steps)
     iterations: int = 30  # at most, Levenberg–Marquardt
-    block_s: float = 2.0  # clusters of the covariance: blocks of this length (at least 4 H steps)
+    block_s: float = 2.0  # the covariance's bandwidth, s (at least 4 H steps)
     delay: bool = True  # a pure delay among the vehicle's coefficients
     exclude: tuple = ()  # effects never refined (diagnose.exclude: e.g. a thrust map fixed earlier)
     signal_weights: tuple = (1.0, 1.0, 1.0, 1.0)  # λ of p, v, R, ω in the loss
@@ -119,7 +119,7 @@ class Refinement:
 
     parameters: tuple[Parameter, ...]
     windows: int  # training windows
-    clusters: int  # blocks of the covariance
+    lag: int  # the covariance's bandwidth, in windows
     horizon: int
     stride: int
     iterations: int
@@ -168,7 +168,8 @@ class Refinement:
                     "ref_s = rate_frozen's mean error over h on the training windows",
             "minimiser": "Levenberg-Marquardt within the plausible bounds, central-difference Jacobian of the "
                          "compiled rollout",
-            "covariance": f"Gauss-Newton sandwich clustered by {self.clusters} time blocks of the training part",
+            "covariance": f"Gauss-Newton sandwich, the windows' gradients' long-run covariance over {self.lag} "
+                          "neighbouring windows (Bartlett weights)",
             "windows": self.windows, "horizon": H, "stride": self.stride, "iterations": self.iterations,
             "stopped": self.stopped, "wall_s": self.wall_s,
             "parameters": [{"effect": p.effect, "parameter": p.name, "label": p.label, "named": p.named,
@@ -222,10 +223,10 @@ def _window(t, X0, U, i, H, P, tp, tq, tv, tw, out, k, xs, xn, x):
 
 
 @nb.njit(cache=True, nogil=True)
-def _normal(t, X0, Us, starts, cluster, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix, dtheta, weight, A, Ad, g, gc, out):
+def _normal(t, X0, Us, starts, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix, dtheta, weight, A, Ad, g, gw, out):
     """Windows ``lo … hi−1``: ``out`` = [cost, windows dropped (diverged)]; with variants (``Ps[1 + k]``:
     parameter k moved by ``dtheta[k]``, forward differences) the Gauss–Newton ``A += JᵀWJ`` (lower
-    triangle), ``g += JᵀWe`` and g per cluster ``gc``.  ``Us[uix[v]]`` are the inputs of variant v (a
+    triangle), ``g += JᵀWe`` and each window's own gradient in ``gw`` (its row).  ``Us[uix[v]]`` are the inputs of variant v (a
     delay moves them); ``starts``: the windows' first rows in the stacked arrays.
 
     With ``nix`` (not empty), the errors-in-variables correction: each variant is also rolled out on
@@ -278,7 +279,7 @@ def _normal(t, X0, Us, starts, cluster, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix,
                 wr = weight[(r_ % 12) // 3]
                 s += wr * (Jw[r_, a] * E[0, r_ // 12, r_ % 12] - Jd[r_, a] * D[0, r_ // 12, r_ % 12])
             g[a] += s
-            gc[cluster[w_i], a] += s
+            gw[w_i, a] = s
             for b in range(a + 1):
                 s2 = 0.0
                 s3 = 0.0
@@ -385,8 +386,8 @@ class _Stack:
     tv: np.ndarray
     tw: np.ndarray
     starts: np.ndarray
-    cluster: np.ndarray
-    n_clusters: int
+    piece: np.ndarray  # per window: its piece (no window's errors are correlated with another piece's)
+    lag: int  # windows: the covariance's bandwidth
     offsets: list  # per piece: (row offset, n)
     noise: np.ndarray | None = None  # a realisation of the rotor speeds' noise per row (None: no correction)
 
@@ -404,13 +405,13 @@ class _Stack:
         return out
 
 
-def _stack(pieces: list[Windows], H: int, stride: int, block_s: float, noise=None, seed: int = 0) -> _Stack:
+def _stack(pieces: list[Windows], H: int, stride: int, lag_s: float, noise=None, seed: int = 0) -> _Stack:
     """``noise``: per piece, the rotor speeds' noise (measured − filtered, (n, 4)); its realisation is it
     with a random sign per sample and rotor (``seed``): white, of the same size, independent of the
     window's own noise (measured − filtered alone is high-passed: it lacks the slow part of the noise,
     which the rollout integrates most)."""
-    t, X0, U, tp, tq, tv, tw, starts, cluster, offsets, nz = [], [], [], [], [], [], [], [], [], [], []
-    o, c0 = 0, 0
+    t, X0, U, tp, tq, tv, tw, starts, piece, offsets, nz = [], [], [], [], [], [], [], [], [], [], []
+    o = 0
     rng = np.random.default_rng(seed)
     for k, w in enumerate(pieces):
         i = np.flatnonzero(w.ok)
@@ -418,11 +419,8 @@ def _stack(pieces: list[Windows], H: int, stride: int, block_s: float, noise=Non
         n = len(w.t)
         offsets.append((o, n))
         if len(i):
-            b = np.floor((w.t[i] - w.t[i[0]]) / block_s).astype(np.int64)
-            _, b = np.unique(b, return_inverse=True)
             starts.append(i + o)
-            cluster.append(b + c0)
-            c0 += int(b.max()) + 1
+            piece.append(np.full(len(i), k))
         for acc, a in ((t, w.t), (X0, w.X0), (U, w.U), (tp, w.tp), (tq, w.tq), (tv, w.tv), (tw, w.tw)):
             acc.append(a)
         if noise is not None:
@@ -436,7 +434,8 @@ def _stack(pieces: list[Windows], H: int, stride: int, block_s: float, noise=Non
         raise QrInputError(None, f"the training part holds no full {H}-step window to refine on",
                            "give longer flights, or a shorter evaluate.horizon")
     return _Stack(cat(t), cat(X0), cat(U), cat(tp), cat(tq), cat(tv), cat(tw), cat(starts).astype(np.int64),
-                  cat(cluster).astype(np.int64), c0, offsets, cat(nz) if noise is not None else None)
+                  cat(piece).astype(np.int64), max(1, int(np.ceil(lag_s / (stride * _median_dt(pieces))))), offsets,
+                  cat(nz) if noise is not None else None)
 
 
 def diagnosis_windows(states_list, measured_list, owner: list[int], windows: list[dict], horizon: int,
@@ -479,7 +478,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
 
     Two fits.  The first moves every parameter within its plausible bounds: what the rollout wants, with
     standard errors.  The written model is the second: a parameter the rollout wants outside its physical
-    range, or a named effect's parameter the rollout wants beyond its standard errors from the one-step
+    range or on a plausible bound (it wants beyond it), or a named effect's parameter the rollout wants beyond its standard errors from the one-step
     estimate (the one-step fit measures that force or torque sample by sample; the rollout moving it is
     compensation for what the model lacks, said in the report), is held at its one-step value, the others
     refined again."""
@@ -500,7 +499,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
         params.append(Parameter(s.effect, s.name, _label(s), s.named, s.start, s.start_se, float(wanted[k]),
                                 None if hit or not np.isfinite(se[k]) else float(se[k]), float(wanted[k]),
                                 (s.lo, s.hi), (s.phys_lo, s.phys_hi), hit, s.reference))
-    held = np.array([not p.in_range or (p.named and p.disagree) for p in params])
+    held = np.array([not p.in_range or (p.bound_hit is not None and p.rollout != p.one_step) or (p.named and p.disagree)
+                     for p in params])
     written = wanted
     if held.any():
         log("held at the one-step value in the written model: " + ", ".join(p.label for p, h in zip(params, held) if h))
@@ -512,7 +512,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
         params = [replace(p, written=float(x)) for p, x in zip(params, written)]
     blocks_train = _blocks(train, vehicle, effects, specs, written, H)
     blocks_test = _blocks(held_out, vehicle, effects, specs, written, H) if held_out else {}
-    return Refinement(tuple(params), len(stack.starts), stack.n_clusters, H, settings.stride, iters, stopped,
+    return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
                       time.perf_counter() - t0, why)
 
@@ -561,7 +561,7 @@ class _Fit:
         return np.ascontiguousarray(np.array(Ps)), np.array(steps, float)
 
     def _run(self, Ps: np.ndarray, dtheta: np.ndarray):
-        """Cost, ``A``, ``Ad``, ``g``, g per cluster and windows dropped: CHUNKS fixed runs of windows on
+        """Cost, ``A``, ``Ad``, ``g``, each window's gradient and windows dropped: CHUNKS fixed runs of windows on
         the threads (:func:`qr.parallel.thread_map`), added in their order."""
         from ..parallel import thread_map
 
@@ -578,16 +578,18 @@ class _Fit:
         p, n = len(dtheta), len(st.starts)
         edges = np.linspace(0, n, CHUNKS + 1).astype(int)
 
+        gw = np.zeros((n, p))  # each chunk writes its own rows
+
         def chunk(c):
-            A, Ad, g, gc, out = np.zeros((p, p)), np.zeros((p, p)), np.zeros(p), np.zeros((st.n_clusters, p)), np.zeros(2)
-            _normal(st.t, st.X0, Us, st.starts, st.cluster, edges[c], edges[c + 1], st.tp, st.tq, st.tv, st.tw,
-                    self.H, Ps, uix, nix, np.ascontiguousarray(dtheta, float), self.weight, A, Ad, g, gc, out)
-            return A, Ad, g, gc, out
+            A, Ad, g, out = np.zeros((p, p)), np.zeros((p, p)), np.zeros(p), np.zeros(2)
+            _normal(st.t, st.X0, Us, st.starts, edges[c], edges[c + 1], st.tp, st.tq, st.tv, st.tw, self.H, Ps,
+                    uix, nix, np.ascontiguousarray(dtheta, float), self.weight, A, Ad, g, gw, out)
+            return A, Ad, g, out
 
         parts = thread_map(chunk, range(CHUNKS))
-        A, Ad, g, gc, out = (sum((x[k] for x in parts[1:]), parts[0][k].copy()) for k in range(5))
+        A, Ad, g, out = (sum((x[k] for x in parts[1:]), parts[0][k].copy()) for k in range(4))
         sym = lambda M: np.tril(M) + np.tril(M, -1).T  # noqa: E731
-        return float(out[0]), sym(A), sym(Ad), g, gc, int(out[1])
+        return float(out[0]), sym(A), sym(Ad), g, gw, int(out[1])
 
     def cost(self, theta) -> float:
         Ps, _ = self._plants(theta)
@@ -634,25 +636,30 @@ class _Fit:
         return theta, it, stopped
 
     def stderr(self, theta) -> np.ndarray:
-        """Standard errors (parameter units) from the Gauss–Newton sandwich clustered by time block; NaN at
-        a bound or where not identified."""
+        """Standard errors (parameter units) from the Gauss–Newton sandwich ``A⁻¹ B A⁻¹``, B the windows'
+        gradients' long-run covariance (Bartlett weights over ``lag`` neighbouring windows of the same
+        piece: overlapping windows share samples, and a rollout's errors stay correlated beyond its own
+        horizon); NaN at a bound or where not identified."""
         at_bound = (theta <= self.lo + 1e-9 * self.scale) | (theta >= self.hi - 1e-9 * self.scale)
         idx = np.flatnonzero(~at_bound)
         se = np.full(len(theta), np.nan)
-        if not idx.size or self.stack.n_clusters < 2:
+        if not idx.size:
             return se
-        _, A, Ad, _, gc, _ = self.normal(theta, idx)
-        C = gc.shape[0]
+        _, A, Ad, _, G, _ = self.normal(theta, idx)
         B = np.zeros((idx.size, idx.size))
-        for c in range(C):  # fixed order
-            B += np.outer(gc[c], gc[c])
-        B *= C / (C - 1)
+        L = self.stack.lag
+        for k in np.unique(self.stack.piece):  # pieces in order, lags in order: a fixed summation order
+            Gk = G[self.stack.piece == k]
+            B += Gk.T @ Gk
+            for lag in range(1, min(L, len(Gk) - 1) + 1):
+                C = Gk[:-lag].T @ Gk[lag:]
+                B += (1.0 - lag / (L + 1.0)) * (C + C.T)
         p = idx.size
         Hm = np.ascontiguousarray(_psd(A - Ad, A))
-        X, L, Y = np.empty((p, p)), np.empty((p, p)), np.empty((p, p))
-        if not cholesky_solve(Hm, np.ascontiguousarray(B), L, X):
+        X, Lm, Y = np.empty((p, p)), np.empty((p, p)), np.empty((p, p))
+        if not cholesky_solve(Hm, np.ascontiguousarray(B), Lm, X):
             return se
-        cholesky_solve(Hm, np.ascontiguousarray(X.T), L, Y)  # A⁻¹ B A⁻¹ (B symmetric)
+        cholesky_solve(Hm, np.ascontiguousarray(X.T), Lm, Y)  # A⁻¹ B A⁻¹ (B symmetric)
         se[idx] = np.sqrt(np.maximum(np.diag(Y), 0.0)) * self.scale[idx]
         return se
 
@@ -693,7 +700,9 @@ def statements(r: Refinement) -> list[str]:
     out = []
     for p in r.parameters:
         ratio = _ratio(p, p.rollout)
-        times = f" (× {ratio:.3g} of the one-step estimate)" if ratio is not None and p.effect != "actuator_delay" else ""
+        times = "" if ratio is None or p.effect == "actuator_delay" else (
+            f" ({100 * (ratio - 1):+.2g} % of the one-step estimate)" if abs(ratio - 1) < 0.2 else
+            f" (× {ratio:.3g} of the one-step estimate)")
         if not p.in_range:
             lo, hi = p.physical
             side = f"above its physical range (at most {_g(p.total(hi))}" if p.rollout > hi else \
@@ -707,9 +716,13 @@ def statements(r: Refinement) -> list[str]:
             out.append(f"{p.label}: the rollout wants {_g(p.total(p.rollout))}{se}, the one-step fit "
                        f"{_g(p.total(p.one_step))}{se1}: {abs(p.z):.1f} standard errors apart{times}. "
                        + _meaning(p, ratio, False))
+        elif p.bound_hit and p.total(p.rollout) == p.total(p.one_step):
+            out.append(f"{p.label}: the rollout's optimum is the one-step value, its {p.bound_hit} bound "
+                       f"{_g(p.total(p.rollout))}.")
         elif p.bound_hit:
-            out.append(f"{p.label}: the rollout's optimum lies on its {p.bound_hit} bound {_g(p.total(p.rollout))} "
-                       "(no standard error).")
+            out.append(f"{p.label}: the rollout's optimum lies on its {p.bound_hit} plausible bound "
+                       f"{_g(p.total(p.rollout))}{times}: it wants a value the catalog's range rules out; held at the "
+                       f"one-step value {_g(p.total(p.one_step))} in the written model. " + _meaning(p, ratio, True))
     agree = [p.label for p in r.parameters if p.in_range and not p.disagree and not p.bound_hit and p.z is not None]
     if agree:
         out.append(f"Within {DISAGREE_Z:g} standard errors of each other: {', '.join(agree)}.")
