@@ -308,14 +308,24 @@ class _Spec:
     reference: float
 
 
+# A propeller's torque-to-thrust ratio κ = C_Q / C_T = (C_P / 2π C_T) D: fixed-pitch propellers have
+# C_P / C_T of 0.3-1.0 at hover, and four rotors at a distance r that do not overlap have D < √2 r; the
+# diameter is taken as at least r/2.  So κ lies between 0.3/2π · r/2 and 1.0/2π · √2 r.
+KAPPA_PER_R = (0.3 / (2 * math.pi) * 0.5, 1.0 / (2 * math.pi) * math.sqrt(2))
+
+
 def physical_range(effect: str, k: int, vehicle) -> tuple[float, float]:
-    """Parameter k of ``effect``'s physical range: the plausible bounds, and for the inertia the
-    rigid-body limit J_ii ≤ m r² (r: the largest rotor distance; no mass lies beyond the rotors)."""
+    """Parameter k of ``effect``'s physical range: the plausible bounds; for the inertia also the
+    rigid-body limit J_ii ≤ m r² (r: the largest rotor distance; no mass lies beyond the rotors), for C_Q's
+    gain a propeller's torque-to-thrust ratio (``KAPPA_PER_R``)."""
     lo, hi = plausible_bounds(effect, vehicle)
     lo, hi = float(lo[k]), float(hi[k])
+    r = float(np.max(np.hypot(*vehicle.rotors.positions.T)))
     if effect == "inertia_error":
-        r = float(np.max(np.hypot(*vehicle.rotors.positions.T)))
         hi = min(hi, vehicle.mass * r * r - float(vehicle.inertia[k]))
+    elif effect == "yaw_torque_gain":
+        kappa = vehicle.torque_coeff / vehicle.thrust_coeff
+        lo, hi = max(lo, KAPPA_PER_R[0] * r / kappa), min(hi, KAPPA_PER_R[1] * r / kappa)
     return lo, hi
 
 
@@ -477,11 +487,13 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     realisation (see the module doc).
 
     Two fits.  The first moves every parameter within its plausible bounds: what the rollout wants, with
-    standard errors.  The written model is the second: a parameter the rollout wants outside its physical
-    range or on a plausible bound (it wants beyond it), or a named effect's parameter the rollout wants beyond its standard errors from the one-step
-    estimate (the one-step fit measures that force or torque sample by sample; the rollout moving it is
-    compensation for what the model lacks, said in the report), is held at its one-step value, the others
-    refined again."""
+    standard errors.  The written model is a second fit, within the physical ranges: a parameter the
+    rollout wants outside its physical range or on a plausible bound (it wants beyond it), or a named
+    effect's parameter the rollout wants beyond its standard errors from the one-step estimate (the
+    one-step fit measures that force or torque sample by sample; the rollout moving it is compensation for
+    what the model lacks, said in the report), is held at its one-step value, the others fitted again.  If
+    the written model does not lower the training loss below the one-step model's, the one-step model is
+    written."""
     t0 = time.perf_counter()
     H = settings.horizon
     specs, why = _specs(vehicle, effects, settings)
@@ -504,12 +516,17 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     written = wanted
     if held.any():
         log("held at the one-step value in the written model: " + ", ".join(p.label for p, h in zip(params, held) if h))
-        written, more, stopped2 = fit.minimise(np.where(held, theta0, wanted), ~held, settings.iterations)
+        phys = np.array([s.phys_lo for s in specs]), np.array([s.phys_hi for s in specs])
+        written, more, stopped2 = fit.minimise(np.clip(np.where(held, theta0, wanted), *phys), ~held,
+                                               settings.iterations, bounds=phys)
         iters += more
         stopped = f"{stopped}; the written model: {stopped2}"
-        from dataclasses import replace
+    if fit.cost(written) >= fit.cost(theta0):  # no better than the one-step model on the training windows
+        written = theta0
+        stopped += "; the written model is the one-step one (what the refinement may write does not lower the loss)"
+    from dataclasses import replace
 
-        params = [replace(p, written=float(x)) for p, x in zip(params, written)]
+    params = [replace(p, written=float(x)) for p, x in zip(params, written)]
     blocks_train = _blocks(train, vehicle, effects, specs, written, H)
     blocks_test = _blocks(held_out, vehicle, effects, specs, written, H) if held_out else {}
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
@@ -599,16 +616,18 @@ class _Fit:
         Ps, steps = self._plants(theta, moved)
         return self._run(Ps, steps)
 
-    def minimise(self, theta0, free, iterations):
-        """Levenberg–Marquardt on the ``free`` parameters, each step solved within the bounds; stops when
-        the loss falls by less than 1e-5 of itself (far below its sampling noise)."""
+    def minimise(self, theta0, free, iterations, bounds=None):
+        """Levenberg–Marquardt on the ``free`` parameters, each step solved within the bounds (the plausible
+        ones, or ``bounds``); stops when the loss falls by less than 1e-5 of itself (far below its sampling
+        noise)."""
         from ..identification.box_qp import box_qp
 
-        theta = np.clip(theta0, self.lo, self.hi)
+        blo, bhi = bounds if bounds is not None else (self.lo, self.hi)
+        theta = np.clip(theta0, blo, bhi)
         idx = np.flatnonzero(free)
         if not idx.size:
             return theta, 0, "nothing to refine"
-        sc, lo, hi = self.scale[idx], self.lo[idx] / self.scale[idx], self.hi[idx] / self.scale[idx]
+        sc, lo, hi = self.scale[idx], blo[idx] / self.scale[idx], bhi[idx] / self.scale[idx]
         mu, it, stopped = 1e-3, 0, f"the iteration limit ({iterations})"
         while it < iterations:
             it += 1
@@ -620,7 +639,7 @@ class _Fit:
             for _ in range(10):
                 dz = box_qp(H + mu * np.diag(D), -g, lo - z, hi - z)
                 trial = theta.copy()
-                trial[idx] = np.clip((z + dz) * sc, self.lo[idx], self.hi[idx])
+                trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
                 new = self.cost(trial)
                 if new < cost:
                     theta = trial
@@ -707,7 +726,8 @@ def statements(r: Refinement) -> list[str]:
             lo, hi = p.physical
             side = f"above its physical range (at most {_g(p.total(hi))}" if p.rollout > hi else \
                 f"below its physical range (at least {_g(p.total(lo))}"
-            why = ", the rigid-body limit m r²: no mass beyond the rotors" if p.effect == "inertia_error" else ""
+            why = {"inertia_error": ", the rigid-body limit m r²: no mass beyond the rotors",
+                   "yaw_torque_gain": ", a propeller's torque-to-thrust ratio"}.get(p.effect, "")
             out.append(f"The rollout wants {p.label} = {_g(p.total(p.rollout))}{times}, {side}{why}); it is held at "
                        f"the one-step value {_g(p.total(p.one_step))} in the written model. " + _meaning(p, ratio, True))
         elif p.disagree:
