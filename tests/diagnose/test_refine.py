@@ -181,5 +181,8 @@ def test_a_wrong_refine_setting_is_one_line():
     from qr.diagnose.settings import DiagnoseConfig
     from qr.errors import QrInputError
 
-    with pytest.raises(QrInputError, match=r"diagnose.refine.*'yes' is not allowed.*use one of none, rollout"):
+    with pytest.raises(QrInputError, match=r"diagnose.refine: 'yes' is not allowed; fix: give diagnose.refine one of "
+                                           r"none, rollout, e.g. diagnose.refine='none'"):
         DiagnoseConfig.from_dict({"refine": "yes"})
+    with pytest.raises(QrInputError, match=r"diagnose.refine_delay: 'no' is not true or false"):
+        DiagnoseConfig.from_dict({"refine_delay": "no"})

@@ -70,16 +70,13 @@ class DiagnoseConfig:
     skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
     # rollout: refine the named effects' parameters and the vehicle's J, C_T, C_Q and a delay by the
     # evaluate protocol's multi-step error on the training part (qr.diagnose.refine); none: off
-    refine: str = "none"
+    refine: str = setting("none", "one", names=lambda: list(REFINE_MODES))
     refine_stride: int = setting(5, "integer", ge=1)  # every stride-th training start is a window
     refine_iterations: int = setting(30, "integer", ge=1, le=1000)  # Levenberg-Marquardt, at most
-    refine_delay: bool = True  # a pure delay among the vehicle's coefficients refined
+    refine_delay: bool = setting(True, "boolean")  # a pure delay among the vehicle's coefficients refined
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
-        if self.refine not in REFINE_MODES:
-            raise QrInputError("diagnose.refine", f"{show(self.refine)} is not allowed",
-                               f"use one of {', '.join(REFINE_MODES)}")
         if not isinstance(self.selection, SelectionConfig):
             raise QrInputError("diagnose.selection", f"{show(self.selection)} is not a mapping of settings",
                                "override its keys one by one, e.g. diagnose.selection.folds=5")
