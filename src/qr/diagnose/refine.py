@@ -516,9 +516,12 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     written = wanted
     if held.any():
         log("held at the one-step value in the written model: " + ", ".join(p.label for p, h in zip(params, held) if h))
-        phys = np.array([s.phys_lo for s in specs]), np.array([s.phys_hi for s in specs])
-        written, more, stopped2 = fit.minimise(np.clip(np.where(held, theta0, wanted), *phys), ~held,
-                                               settings.iterations, bounds=phys)
+        # the free ones within their physical ranges; a held one stays at its one-step value, even where the
+        # diagnosis named it outside the range (said in the report; the refinement does not move it)
+        start = np.where(held, theta0, wanted)
+        phys = (np.where(held, np.minimum(theta0, [s.phys_lo for s in specs]), [s.phys_lo for s in specs]),
+                np.where(held, np.maximum(theta0, [s.phys_hi for s in specs]), [s.phys_hi for s in specs]))
+        written, more, stopped2 = fit.minimise(np.clip(start, *phys), ~held, settings.iterations, bounds=phys)
         iters += more
         stopped = f"{stopped}; the written model: {stopped2}"
     if fit.cost(written) >= fit.cost(theta0):  # no better than the one-step model on the training windows
@@ -743,6 +746,11 @@ def statements(r: Refinement) -> list[str]:
             out.append(f"{p.label}: the rollout's optimum lies on its {p.bound_hit} plausible bound "
                        f"{_g(p.total(p.rollout))}{times}: it wants a value the catalog's range rules out; held at the "
                        f"one-step value {_g(p.total(p.one_step))} in the written model. " + _meaning(p, ratio, True))
+    for p in r.parameters:
+        lo, hi = p.physical
+        if not lo <= p.written <= hi:
+            out.append(f"{p.label} = {_g(p.total(p.written))}, the one-step estimate the diagnosis named, lies outside "
+                       f"its physical range [{_g(p.total(lo))}, {_g(p.total(hi))}]; the refinement does not move it.")
     agree = [p.label for p in r.parameters if p.in_range and not p.disagree and not p.bound_hit and p.z is not None]
     if agree:
         out.append(f"Within {DISAGREE_Z:g} standard errors of each other: {', '.join(agree)}.")
