@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from ..effects import CATALOG, MAX_DELAY_S, plausible_bounds
+from ..effects import CATALOG, plausible_bounds
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
 from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, Windows, score_plant, summary, pool, at
@@ -52,7 +52,7 @@ from ..sim.plant import P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, trac
 COEFFICIENTS = ("inertia_error", "thrust_gain", "yaw_torque_gain", "actuator_delay")
 DISAGREE_Z = 2.0  # estimates this many combined standard errors apart disagree (two-sided 95 %)
 CHUNKS = 16  # fixed, not the thread count: the order of every sum is the same anywhere
-FD_STEP = 1e-4  # central differences: this fraction of each parameter's scale
+FD_STEP = 1e-4  # forward differences: this fraction of each parameter's scale
 LABELS = {("inertia_error", "dJxx"): "J_xx", ("inertia_error", "dJyy"): "J_yy", ("inertia_error", "dJzz"): "J_zz",
           ("thrust_gain", "gain"): "C_T (gain)", ("yaw_torque_gain", "gain"): "C_Q (gain)",
           ("actuator_delay", "delay_s"): "delay (s)"}

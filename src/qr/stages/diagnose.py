@@ -197,7 +197,7 @@ def _run_diagnosis(flights, vehicle, out, overrides, track, log, return_result, 
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
                             "the nominal parameters plus the named effects"
                             + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
-                               "(diagnosis.json: refine), each in its physical range" if "refine" in res else ""))
+                               "where the refinement may write them (diagnosis.json: refine)" if "refine" in res else ""))
     if track if track is not None else bool(cfg.diagnose.get("track", False)):
         track_diagnosis(out.name, doc, flights, out, {"nominal_loss": res["nominal_loss"],
                                                       "extended_loss": res["extended_loss"]})
