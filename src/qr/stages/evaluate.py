@@ -156,10 +156,13 @@ def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, 
 def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
     """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``
     (metrics named by the models' labels), the report's first sentence as the run's description."""
+    import re
+
     from .. import tracking
     from ..report.evaluation import headline, labels
 
-    name_of = labels(doc)
+    # a label as an MLflow metric name ("physical (refined)" -> physical_refined): no parentheses or commas
+    name_of = {k: re.sub(r"[^A-Za-z0-9_\-./:]+", "_", v).strip("_") for k, v in labels(doc).items()}
     with tracking.run("evaluate", name, doc["config"], inputs=inputs, description=headline(doc)) as run:
         run.metrics(rollout.horizon_metrics({name_of[k]: v for k, v in doc["models"].items()}, doc["horizon"],
                                             ratios=True))
