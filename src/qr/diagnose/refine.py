@@ -27,10 +27,17 @@ the textbook ``σ² A⁻¹`` would be far too small (its coverage on synthetic f
 ``tests/diagnose/test_refine.py``, ``benchmarks/refine_coverage.py``).  A parameter held at a bound has
 none.
 
-Physical range: the plausible bounds, and for the inertia the rigid-body limit J_ii ≤ m r² with r the
-largest rotor distance (no mass beyond the rotors).  A parameter the rollout wants outside its range is
-reported, held at its equation-error value in a second fit of the others, and never written into the
-vehicle file.  Deterministic: fixed chunks, fixed summation order (no dependence on the thread count).
+Errors in variables: noise in the logged rotor speeds makes a larger inertia look better (it filters
+the noise the rollout integrates); the cost subtracts what the noise adds, rolling each window out again
+on its inputs plus a realisation of their noise (:func:`_normal`).
+
+Physical range: the plausible bounds; for the inertia the rigid-body limit J_ii ≤ m r² with r the
+largest rotor distance (no mass beyond the rotors); for C_Q a propeller's torque-to-thrust ratio
+(``KAPPA_PER_R``).  A parameter the rollout wants outside its range (or on a plausible bound), and a named
+effect's parameter it wants beyond the one-step estimate's standard errors, is reported and held at its
+equation-error value in a second fit of the others within their physical ranges: the written model
+(:func:`refine`).  Deterministic: fixed chunks, fixed summation order (no dependence on the thread
+count); the noise realisation is drawn from ``seed``.
 """
 
 from __future__ import annotations
