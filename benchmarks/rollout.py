@@ -10,6 +10,12 @@ the held-out flights beside the references `hold` and `rate_frozen` (the public 
 physics baseline).  Prints MAE at h = 1, 10, 50 per model and each model's ratio to `rate_frozen`
 at h = 50.  Needs the workflow's ingest (`snakemake --cores 2 ingest_all` or a full run).
 
+`--goals` prints issue 26's goal table from the workflow's own results (rules evaluate_held_out,
+evaluate_learned, learn_residual: `snakemake --cores 2 results/tables/rollout_held_out.csv` first): the
+held-out ratios to `rate_frozen` at h = 50 of `physical (refined)` (goal ≤ 1.0 / 1.0 / 1.0 / 1.5, every
+written parameter in its physical range), the rollout-trained hybrid (≤ 0.6 / 0.6 / 0.7 / 0.6) and the
+payload chain's hybrids (≤ 1.0 on all four), each set's training times (refinement, residual).
+
 `--residual` also trains a residual through the rollout (`qr learn residual`, rule `learn_residual`'s
 call) on the same training flights on top of the physical extended vehicle, rolls it out beside the
 others ("rollout-trained") and prints its training wall time; `--residual-from DIR` flies a residual
@@ -44,7 +50,10 @@ def main():
     ap.add_argument("--residual", action="store_true", help="train a residual through the rollout too")
     ap.add_argument("--residual-from", help="a qr learn residual output whose network to carry over")
     ap.add_argument("--learn", action="append", default=[], help="qr learn residual overrides")
+    ap.add_argument("--goals", action="store_true", help="the goal table from the workflow's results")
     a = ap.parse_args()
+    if a.goals:
+        return goals(Path(a.results))
     flights = sorted(glob.glob(f"{a.results}/ingest/{a.set}/*.parquet"))
     if not flights:
         raise SystemExit(f"no flights in {a.results}/ingest/{a.set}: run the workflow's ingest first")
@@ -102,6 +111,49 @@ def _with_residual(a, flights, nis, tmp):
               f"of estimates; {doc['windows']['training']} training windows")
         models.append(str(tmp / "residual" / "hybrid_vehicle.yaml"))
     return run_evaluation(test, models, tmp / "eval_residual", log=lambda m: None, reports=[reports[f] for f in test])
+
+
+SHOWN = ("physical (refined)", "hybrid (rollout-trained)", "hybrid (rollout-trained, carried over)",
+         "hybrid (rollout-trained, fine-tuned)")
+GOALS = {("brushless", "physical (refined)"): (1.0, 1.0, 1.0, 1.5),  # issue 26 (the other sets: no goal)
+         ("brushless", "hybrid (rollout-trained)"): (0.6, 0.6, 0.7, 0.6),
+         ("payload", "hybrid (rollout-trained, carried over)"): (1.0,) * 4,
+         ("payload", "hybrid (rollout-trained, fine-tuned)"): (1.0,) * 4}
+
+
+def goals(results: Path):
+    """Issue 26's goals against the workflow's held-out evaluations (every set it ran)."""
+    rows = []
+    for d in sorted((results / "evaluation").glob("*/held_out/evaluation.json")):
+        s = d.parent.parent.name
+        docs = [json.loads(d.read_text())]
+        learned = d.parent.parent / "learned" / "evaluation.json"
+        if learned.exists():
+            docs.append(json.loads(learned.read_text()))
+        diag = json.loads((d.parent.parent / "training_diagnosis" / "diagnosis.json").read_text())
+        ref = diag.get("refine") or {}
+        train = results / "learn" / "residual" / s / "training.json"
+        t_res = json.loads(train.read_text())["wall_s"]["training"] if train.exists() else None
+        print(f"{s}: {len(docs[0]['flights'])} held-out flights; refinement {ref.get('wall_s', float('nan')):.0f} s "
+              f"({ref.get('windows', 0)} windows), residual training "
+              + (f"{t_res:.0f} s" if t_res is not None else "–"))
+        for doc in docs:
+            H, m = doc["horizon"], doc["models"]
+            for k, label in doc["labels"].items():
+                if label not in SHOWN or k not in m:
+                    continue
+                r = [rollout.at(m[k], H, q) / rollout.at(m["rate_frozen"], H, q) for q in rollout.QUANTITIES]
+                g = GOALS.get((s, label))
+                out = [p["label"] for p in ref.get("parameters", []) if label == "physical (refined)"
+                       and not p["physical_range"][0] <= p["written"] <= p["physical_range"][1]]
+                met = g is not None and all(x <= y for x, y in zip(r, g)) and not out
+                rows.append((s, label, r, g, met))
+                print(f"  {label:40s}" + " / ".join(f"{x:.2f}" for x in r)
+                      + ("   (no goal)" if g is None else "   goal ≤ " + " / ".join(f"{x:g}" for x in g)
+                         + ("   met" if met else "   not met"))
+                      + (f"; out of its physical range: {', '.join(out)}" if out else ""))
+    if not rows:
+        raise SystemExit(f"no held-out evaluations in {results}/evaluation: run the workflow first")
 
 
 if __name__ == "__main__":

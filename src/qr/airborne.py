@@ -139,3 +139,31 @@ def check_airborne(df: pd.DataFrame, vehicle, path=None) -> list[tuple[float, fl
         raise QrInputError(path, f"never airborne: {why}",
                            "give a log of a flight; if it did fly, check the vehicle's mass and thrust_coeff")
     return windows
+
+
+def hover_thrust_coeff(flights: list[pd.DataFrame], vehicle) -> tuple[float, list[float]]:
+    """The thrust coefficient C_T that balances the weight over airborne flight: the vertical force
+    balance ``m (a_z + g) = C_T Σ_i u_i² (R e_z)_z`` summed over every airborne row with all rotor speeds and
+    the attitude present, with Σ a_z taken as zero (a flight that starts and ends near rest: the net change
+    of vertical speed over seconds of flight is a fraction of a per cent of g).  Everything else that acts
+    along the vertical on average (drag, a constant offset) is in it: the vehicle file's C_T of a vehicle
+    whose rotor thrust was never measured.  Returns the pooled value and one per flight; the airborne rows
+    are found with ``vehicle``'s C_T, then again with the estimate."""
+    from .frames import quat_to_rot
+    from .states import ROTORS
+
+    veh = vehicle
+    for _ in range(3):
+        num, den, each = 0.0, 0.0, []
+        for df in flights:
+            u = df[ROTORS].to_numpy(float)
+            q = df[["qw", "qx", "qy", "qz"]].to_numpy(float)
+            ok = airborne_mask(df, veh) & np.isfinite(u).all(axis=1) & np.isfinite(q).all(axis=1)
+            R33 = quat_to_rot(q[ok] / np.linalg.norm(q[ok], axis=1, keepdims=True))[:, 2, 2]
+            d = float(np.sum(R33 * np.sum(u[ok] ** 2, axis=1)))
+            n = vehicle.mass * 9.81 * int(ok.sum())
+            num, den = num + n, den + d
+            each.append(n / d)
+        ct = num / den
+        veh = vehicle.with_changes(thrust_coeff=ct, torque_coeff=vehicle.torque_coeff / vehicle.thrust_coeff * ct)
+    return ct, each

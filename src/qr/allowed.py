@@ -24,9 +24,10 @@ def is_number(x) -> bool:
 
 @dataclass(frozen=True)
 class Allowed:
-    """What a setting may be: a number or an integer in a range, or a list of names from a set."""
+    """What a setting may be: a number or an integer in a range, a list of names from a set, one name
+    from a set, or true/false."""
 
-    kind: str  # "number" | "integer" | "names"
+    kind: str  # "number" | "integer" | "names" | "one" | "boolean"
     lo: float = -math.inf
     hi: float = math.inf
     lo_open: bool = False
@@ -37,6 +38,10 @@ class Allowed:
     reasons: Callable[[], dict[str, str]] | None = None  # kind "names": why some known names are refused
 
     def describe(self) -> str:
+        if self.kind == "one":
+            return f"one of {', '.join(self.names())}"
+        if self.kind == "boolean":
+            return "true or false"
         if self.kind == "names":
             what = f"a{' non-empty' if self.nonempty else ''} list of distinct names from {', '.join(self.names())}"
             return what + (f", or null ({self.null})" if self.null else "")
@@ -57,6 +62,14 @@ class Allowed:
         fix = f"give {key} {self.describe()}, e.g. {key}={show(default)} (the default{', ' + source if source else ''})"
         if self.kind == "names":
             return self._names(key, value, fix)
+        if self.kind == "one":
+            if not isinstance(value, str) or value not in self.names():
+                raise QrInputError(key, f"{show(value)} is not allowed", fix)
+            return value
+        if self.kind == "boolean":
+            if not isinstance(value, (bool, np.bool_)):
+                raise QrInputError(key, f"{show(value)} is not true or false", fix)
+            return bool(value)
         if not is_number(value):
             raise QrInputError(key, f"{show(value)} is not {'an integer' if self.kind == 'integer' else 'a number'}",
                                fix)

@@ -163,7 +163,7 @@ LEADING_METRICS = {
     "learn": ["rmse", "ratio", "nominal_rmse", "train_time_s"],
     "diagnose": ["effects_named", "nominal_loss", "extended_loss", "replay.nominal_position_rmse",
                  "replay.extended_position_rmse", "rollout.extended.p_ratio", "rollout.extended.w_ratio"],
-    "evaluate": [f"{m}.{q}_ratio" for m in ("nominal", "extended", "hybrid") for q in ("p", "w")],
+    "evaluate": [f"{m}.{q}_ratio" for m in ("nominal", "extended", "physical_refined", "hybrid") for q in ("p", "w")],
     "filter": ["nis.position.mean", "nis.attitude.mean", "inconsistent_filters", "seconds"],
 }
 LEADING_PARAMS = {"learn": ["inputs", "target", "model.kind", "model.layers", "model.neurons"]}

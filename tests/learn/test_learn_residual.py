@@ -148,6 +148,29 @@ def test_fine_tuning_starts_from_the_vehicles_residual(flights, trained, tmp_pat
     assert ft["initial_loss"]["val_loss"] < 0.95 * fresh["initial_loss"]["val_loss"]
 
 
+def test_a_carried_network_flies_on_another_vehicle_file(flights, trained, tmp_path):
+    """The workflow's chain (rule carry_residual): another (extended) vehicle file, its torque remainder
+    dropped, carrying the trained network: the same weights, from wherever the new file is read."""
+    import shutil
+
+    from qr.stages.learn_residual import carry_residual
+    from qr.vehicle import load_vehicle, save_vehicle
+
+    _, out = trained
+    W = np.full((3, 11), 1e-4)
+    other = load_vehicle(flights / "a" / "vehicle.yaml").with_changes(
+        mass=0.8, torque_remainder={"weights": W.tolist()},
+        effects=[{"name": "linear_drag", "parameters": {"kx": 0.1, "ky": 0.1, "kz": 0.05}}])
+    save_vehicle(other, tmp_path / "extended_vehicle.yaml")
+    carry_residual(tmp_path / "extended_vehicle.yaml", out / "hybrid_vehicle.yaml", tmp_path / "carried")
+    shutil.move(tmp_path / "carried", tmp_path / "moved")  # the network is found after a move of the file
+    v = load_vehicle(tmp_path / "moved" / "hybrid_vehicle.yaml")
+    assert v.mass == 0.8 and v.effects == other.effects and "torque_remainder" not in v.raw
+    trained_net = load_vehicle(out / "hybrid_vehicle.yaml").residual
+    for a, b in zip(v.residual.weights + v.residual.biases, trained_net.weights + trained_net.biases):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_the_spec_command_line(flights, tmp_path):
     flight, vehicle, out = flights / "a" / "flight.csv", flights / "a" / "vehicle.yaml", tmp_path / "OUTDIR"
     r = subprocess.run([sys.executable, "-m", "qr.cli", "learn", "residual", str(flight), "--vehicle", str(vehicle),

@@ -45,8 +45,11 @@ def test_ingest_and_summary_on_a_subset(tmp_path):
                     "--", "results/ingest/summary.csv"], cwd=tmp_path, check=True, capture_output=True,
                    env={**__import__("os").environ, "QR_RESULTS": str(tmp_path / "results")})
     table = pd.read_csv(tmp_path / "results" / "ingest" / "summary.csv")
-    assert list(table["set"]) == ["brushless"] * 2 + ["payload"] * 2
-    assert (table["rows"] > 300).all() and (table["rate_hz"].between(95, 105)).all()
+    assert sorted(table["set"]) == ["brushed"] * 2 + ["brushless"] * 2 + ["payload"] * 2
+    assert (table["rows"] > 300).all()
+    # the brushed logs' motion capture arrives at ~90 Hz (median step 11 ms), the others' at 100 Hz
+    assert table["rate_hz"].where(table["set"] != "brushed").dropna().between(95, 105).all()
+    assert table.loc[table["set"] == "brushed", "rate_hz"].between(85, 95).all()
     assert (tmp_path / "results" / "ingest" / "summary_by_set.md").exists()
     assert (tmp_path / "results" / "figures" / "ingest_residual_z.png").stat().st_size > 1000
     assert (tmp_path / "results" / "benchmarks" / "ingest" / "summary.tsv").exists()

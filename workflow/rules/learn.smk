@@ -7,6 +7,7 @@ LEARN_TABLES = ["table_3_1", "table_3_2", "table_4_2", "table_4_3", "gpr_kernels
 # Extra Hydra overrides (conf/workflow.yaml, key `learn`): `overrides` for every sweep, `sweeps.<name>` for one
 # (a reduced run picks rows with e.g. `learn.row=4,14`; see conf/workflow_ci.yaml).
 LEARN = config.get("learn", {})
+RESIDUAL_CARRY = DIAG_CARRY if DIAG_CARRY in SETS and DIAG_FIRST in SETS else None  # fine-tunes a carried network
 
 
 rule learn_dataset:
@@ -83,10 +84,10 @@ rule learn_best:
         "../scripts/learn_best.py"
 
 
-# A residual trained through the rollout (qr learn residual, docs/spec/hybrid.md) on a set's training
-# flights (every third flight held out, as rule evaluate_held_out holds it out), on top of the physical
-# part of that rule's extended vehicle.  Not in `rule all`: request it, e.g.
-#   snakemake --cores 2 results/learn/residual/brushless
+# A residual trained through the rollout (qr learn residual, docs/spec/hybrid.md) on a set's training flights
+# (every third flight held out, as rule evaluate_held_out holds it out), on top of the physical part of that
+# rule's extended vehicle (the refined one, `physical (refined)`).  The chain's carry-to set (the payload)
+# starts from the first set's network carried over (rule carry_residual) and fine-tunes it.
 rule learn_residual:
     input:
         flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
@@ -94,6 +95,7 @@ rule learn_residual:
         crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
         # (a function: rule evaluate_held_out is defined in evaluate.smk, included after this file)
         diagnosis=lambda wc: rules.evaluate_held_out.output.diagnosis.format(set=wc.set),
+        carried=lambda wc: f"results/learn/carried/{wc.set}" if wc.set == RESIDUAL_CARRY else [],
         config="conf/learn/residual.yaml",
     output:
         directory("results/learn/residual/{set}"),
@@ -107,3 +109,22 @@ rule learn_residual:
         "../envs/qr.yaml"
     script:
         "../scripts/learn_residual.py"
+
+
+# The first set's rollout-trained network on the carry-to set's own refined physical model (no training).
+if RESIDUAL_CARRY:
+
+    rule carry_residual:
+        input:
+            diagnosis=lambda wc: rules.evaluate_held_out.output.diagnosis.format(set=RESIDUAL_CARRY),
+            residual=f"results/learn/residual/{DIAG_FIRST}",
+        output:
+            directory(f"results/learn/carried/{RESIDUAL_CARRY}"),
+        log:
+            "results/logs/learn/residual_carried.log",
+        benchmark:
+            "results/benchmarks/learn/residual_carried.tsv"
+        conda:
+            "../envs/qr.yaml"
+        script:
+            "../scripts/carry_residual.py"

@@ -5,4 +5,6 @@ from qr.stages.evaluate import summary_table
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
-    summary_table(dict(zip(snakemake.params.names, snakemake.input.sets)), snakemake.output.table)
+    summary_table({name: [held_out, learned] for name, held_out, learned in
+                   zip(snakemake.params.names, snakemake.input.sets, snakemake.input.learned)},
+                  snakemake.output.table)

@@ -4,8 +4,11 @@ from pathlib import Path
 
 from qr.stages.learn_residual import train_held_out
 
+# on the training diagnosis's (refined) physical model; the carry-to set: fine-tuning the carried network
+vehicle = (Path(snakemake.input.carried) / "hybrid_vehicle.yaml" if snakemake.input.carried
+           else Path(snakemake.input.diagnosis) / "extended_vehicle.yaml")
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
-    train_held_out(snakemake.input.flights, Path(snakemake.input.diagnosis) / "extended_vehicle.yaml",
-                   snakemake.output[0], snakemake.params.overrides, reports=snakemake.input.nis,
-                   estimates=snakemake.input.crossfit, track=True, log=lambda m: print(m, file=log, flush=True))
+    train_held_out(snakemake.input.flights, vehicle, snakemake.output[0], snakemake.params.overrides,
+                   reports=snakemake.input.nis, estimates=snakemake.input.crossfit, track=True,
+                   log=lambda m: print(m, file=log, flush=True))

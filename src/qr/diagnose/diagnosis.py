@@ -77,6 +77,7 @@ class Diagnosis:
     vehicle_file_unresolved: list[dict]  # the gross factors not stated, each with why
     extended_vehicle: Vehicle  # the nominal vehicle plus the named effects (and the torque remainder)
     torque_remainder: TorqueRemainder | None = None  # the learned torque remainder (a hybrid), where asked
+    refinement: object | None = None  # qr.diagnose.refine.Refinement (diagnose.refine=rollout), or None
 
     @property
     def effects(self) -> list[NamedEffect]:
@@ -144,9 +145,25 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say)
     rollout, beyond, accelerometer = _after_the_fit(states, rows, vehicle, final, held_out, effects, hybrid,
                                                     settings, say)
+    refinement, written = _refined(states, rows, vehicle, final, hybrid or extended, settings, say)
     statements, unresolved = _vehicle_file(final, vehicle, vehicle_file or vehicle.name, flights)
     return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
-                     beyond, accelerometer, statements, unresolved, hybrid or extended, torque_rem)
+                     beyond, accelerometer, statements, unresolved, written, torque_rem, refinement)
+
+
+def _refined(states, rows, vehicle, final: Fit, extended: Vehicle, settings: Settings, say):
+    """(the refinement by simulation error, the vehicle written): with ``diagnose.refine=rollout`` the named
+    effects' parameters and the vehicle's J, C_T, C_Q refined by the rollout's error
+    (:mod:`qr.diagnose.refine`), as far as it may write them; else (None, ``extended``)."""
+    if settings.diagnose.refine != "rollout":
+        return None, extended
+    from .refine import refine_diagnosis
+
+    named = [{"name": e.name, "parameters": e.parameters, "stderr": e.stderr} for e in final.effects]
+    refinement = refine_diagnosis(states, rows, final.labels.full.windows, vehicle, named, settings.diagnose,
+                                  settings.evaluate, settings.seed, say)
+    return refinement, extended.with_changes(effects=vehicle.effects + refinement.effects(
+        [e.in_vehicle() for e in final.effects]))
 
 
 def _torque_remainder(final: Fit, extended: Vehicle, vehicle, flights: Flights, ridge: float,

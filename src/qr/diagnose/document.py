@@ -120,6 +120,7 @@ def stated(d: Diagnosis) -> dict:
            if tr is not None else {}),
         **segments_json(d.flights.names, d.flights.split),
         "conventions": d.flights.conventions,
+        **({"refine": d.refinement.to_json()} if d.refinement is not None else {}),
         "vehicle_file": d.vehicle_file,
         "vehicle_file_unresolved": d.vehicle_file_unresolved,
     }

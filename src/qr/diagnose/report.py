@@ -237,6 +237,15 @@ def _closing(d: Diagnosis, figs: dict) -> list[str]:
                 "simulation study accept it.\n"]
 
 
+def _refinement(doc: dict) -> list[str]:
+    """The refinement by simulation error (``diagnose.refine=rollout``), beside the one-step estimates."""
+    if not doc.get("refine"):
+        return []
+    from .refine import report_lines
+
+    return report_lines(doc["refine"])
+
+
 def write_report(outdir: Path, d: Diagnosis, figs: dict) -> None:
     """``outdir/report.md``: the answer first, then how far the nominal model is off, what is named and
     why, the vehicle file, the selection's evidence, replay, rollout, and the figures ``figs`` (title ->
@@ -245,7 +254,7 @@ def write_report(outdir: Path, d: Diagnosis, figs: dict) -> None:
     L = [*_opening(doc), *_data_used(doc), *_conventions(doc["conventions"]), *_how_far(d),
          *_named_causes(d, doc), *_vehicle_file(doc), *_selection(doc), *_anatomy_table(d.held_out.anatomy),
          *_arbitration(doc), *_slow_torque_lines(doc["selection"]["slow_torque"]), *_rejected(doc), *_beyond(d),
-         *_replay(doc), *_rollout(d), *_torque_remainder(doc), *_closing(d, figs)]
+         *_replay(doc), *_rollout(d), *_torque_remainder(doc), *_refinement(doc), *_closing(d, figs)]
     write_text(outdir / "report.md", "\n".join(L) + "\n")
 
 

@@ -21,6 +21,7 @@ from ..estimation.settings import DIAGNOSIS_FILTER
 from ..identification.selection import SelectionConfig  # noqa: F401  (a group of these settings)
 
 DEFAULTS_FILE = "src/qr/diagnose/settings.py"
+REFINE_MODES = ("none", "rollout")  # diagnose.refine (qr.diagnose.refine)
 
 
 def _catalog() -> list[str]:
@@ -68,6 +69,12 @@ class DiagnoseConfig:
     slow_torque_min_gain: float = setting(0.05, ge=0, le=1)
     # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
     skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
+    # rollout: refine the named effects' parameters and the vehicle's J, C_T, C_Q and a delay by the
+    # evaluate protocol's multi-step error on the training part (qr.diagnose.refine); none: off
+    refine: str = setting("none", "one", names=lambda: list(REFINE_MODES))
+    refine_stride: int = setting(5, "integer", ge=1)  # every stride-th training start is a window
+    refine_iterations: int = setting(30, "integer", ge=1, le=1000)  # Levenberg-Marquardt, at most
+    refine_delay: bool = setting(True, "boolean")  # a pure delay among the vehicle's coefficients refined
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

@@ -144,7 +144,10 @@ def _write(out, diagnosis, vehicle, figures: bool, anatomy, force: bool) -> dict
         write_json(tmp / "diagnosis.json", doc)
         save_vehicle(diagnosis.extended_vehicle, tmp / "extended_vehicle.yaml",
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
-                            "the nominal parameters plus the named effects")
+                            "the nominal parameters plus the named effects"
+                            + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
+                               "where the refinement may write them (diagnosis.json: refine)"
+                               if diagnosis.refinement is not None else ""))
     return doc
 
 

@@ -156,10 +156,13 @@ def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, 
 def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
     """One MLflow run: MAE at h = H per model and quantity, and each model's ratio to ``rate_frozen``
     (metrics named by the models' labels), the report's first sentence as the run's description."""
+    import re
+
     from .. import tracking
     from ..report.evaluation import headline, labels
 
-    name_of = labels(doc)
+    # a label as an MLflow metric name ("physical (refined)" -> physical_refined): no parentheses or commas
+    name_of = {k: re.sub(r"[^A-Za-z0-9_\-./:]+", "_", v).strip("_") for k, v in labels(doc).items()}
     with tracking.run("evaluate", name, doc["config"], inputs=inputs, description=headline(doc)) as run:
         run.metrics(rollout.horizon_metrics({name_of[k]: v for k, v in doc["models"].items()}, doc["horizon"],
                                             ratios=True))
@@ -190,8 +193,6 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
                            "give two flights or more")
     import tempfile
 
-    from ..vehicle import load_vehicle, save_vehicle
-
     train, test = held_out_by_flight(flights)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     if len(train) == 1 and single_overrides:
@@ -200,38 +201,91 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     run_diagnosis(train, vehicle, diag_out, list(overrides), track=False, figures=False,
                   reports=[reports[f] for f in train], log=lambda m: None,
                   estimates=[stored[f] for f in train] if stored else None)
-    ext = Path(diag_out) / "extended_vehicle.yaml"
-    models, labels = [vehicle, str(ext)], ["nominal", "extended"]
     with tempfile.TemporaryDirectory() as tmp:
-        if load_vehicle(ext).raw.get("torque_remainder"):  # a hybrid: its physical part beside it
-            physical = load_vehicle(ext).to_dict()
-            physical.pop("torque_remainder")
-            save_vehicle(physical, Path(tmp) / "extended_physical.yaml")
-            models.insert(1, str(Path(tmp) / "extended_physical.yaml"))
-            labels.append("hybrid")
+        models, labels = held_out_models(vehicle, diag_out, Path(tmp))
         return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
                               track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels)
 
 
+def held_out_models(vehicle, diag_out, tmp: Path) -> tuple[list[str], list[str]]:
+    """The vehicle files the held-out rollout scores, and their labels, from a training diagnosis in
+    ``diag_out``: the nominal vehicle; the extended one (the equation-error estimates); with
+    ``diagnose.refine=rollout`` the refined physical model (``physical (refined)``); with a learned torque
+    remainder the equation-error model plus it (``hybrid``).  Those not written as such are written to
+    ``tmp``."""
+    import json
+
+    from ..vehicle import load_vehicle, save_vehicle
+
+    ext = load_vehicle(Path(diag_out) / "extended_vehicle.yaml")
+    doc = json.loads((Path(diag_out) / "diagnosis.json").read_text())
+    base = load_vehicle(vehicle)
+    one_step = base.effects + [{"name": e["name"], "parameters": e["parameters"]} for e in doc["effects"]]
+    models, labels = [str(vehicle)], ["nominal"]
+
+    def add(raw, name, label):
+        save_vehicle(raw, tmp / name)
+        models.append(str(tmp / name))
+        labels.append(label)
+
+    raw = ext.to_dict()
+    remainder = raw.pop("torque_remainder", None)
+    add({**raw, "effects": one_step}, "extended_physical.yaml" if remainder else "extended_vehicle.yaml", "extended")
+    if doc.get("refine"):
+        add(raw, "refined_physical.yaml", "physical (refined)")
+    if remainder:  # the remainder was fitted against the equation-error model
+        add({**raw, "effects": one_step, "torque_remainder": remainder}, "extended_vehicle.yaml", "hybrid")
+    return models, labels
+
+
+def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, track: str | None = None,
+                     estimates=None) -> dict:
+    """``vehicles`` (labelled ``labels``) on the flights the held-out protocol holds out
+    (:func:`held_out_by_flight`), beside the nominal ``vehicle`` and the references: the workflow's
+    rollout-trained residuals, scored on the same flights as :func:`evaluate_held_out`'s models."""
+    import json
+
+    _, test = held_out_by_flight(flights)
+    reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
+    stored = dict(zip(flights, estimates)) if estimates else {}
+    return run_evaluation(test, [vehicle, *vehicles], eval_out, log=lambda m: None,
+                          reports=[reports[f] for f in test], track=track,
+                          estimates=[stored[f] for f in test] if stored else None, labels=["nominal", *labels])
+
+
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:
-    """The held-out rollouts of the flight sets side by side: MAE at h = H and the ratio to ``rate_frozen``."""
+    """The held-out rollouts of the flight sets side by side: MAE at h = H and the ratio to ``rate_frozen``
+    (a set's value: its evaluation folder, or several on the same flights, whose models are added in order,
+    each model and reference once)."""
     import json
 
     from ..report.evaluation import labels, ratio
     from ..report.tables import write_table
 
     rows = []
-    for name, d in eval_dirs.items():
-        doc = json.loads((Path(d) / "evaluation.json").read_text())
-        H, models, label = doc["horizon"], doc["models"], labels(doc)
-        for model, block in models.items():
-            row = {"set": name, "held-out flights": len(doc["flights"]), "model": label[model],
-                   "horizon (s)": round(H * doc["dt"], 6)}
-            for q in rollout.QUANTITIES:
-                row[f"{q}@{H}"] = rollout.at(block, H, q)
-                row[f"{q} / rate_frozen"] = ratio(models, model, q, H)
-            rows.append(row)
+    for name, dirs in eval_dirs.items():
+        seen = set()
+        for d in [dirs] if isinstance(dirs, (str, Path)) else dirs:
+            doc = json.loads((Path(d) / "evaluation.json").read_text())
+            H, models, label = doc["horizon"], doc["models"], labels(doc)
+            rows += _summary_rows(name, doc, H, models, label, seen, ratio)
     df = pd.DataFrame(rows)
     write_table(df, table, title="Rollout on held-out flights (qr evaluate; ratio < 1: better than the "
                                  "benchmark's physics baseline)")
     return df
+
+
+def _summary_rows(name, doc, H, models, label, seen, ratio) -> list[dict]:
+    """One row per model of one evaluation not already in ``seen`` (labels)."""
+    rows = []
+    for model, block in models.items():
+        if label[model] in seen:
+            continue
+        seen.add(label[model])
+        row = {"set": name, "held-out flights": len(doc["flights"]), "model": label[model],
+               "horizon (s)": round(H * doc["dt"], 6)}
+        for q in rollout.QUANTITIES:
+            row[f"{q}@{H}"] = rollout.at(block, H, q)
+            row[f"{q} / rate_frozen"] = ratio(models, model, q, H)
+        rows.append(row)
+    return rows

@@ -120,6 +120,24 @@ def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = N
     return run_residual(train, vehicle, out, overrides, reports=reports or None, estimates=pick(estimates), **kwargs)
 
 
+def carry_residual(extended_vehicle, hybrid_vehicle, out) -> None:
+    """``out/hybrid_vehicle.yaml``: the physical part of ``extended_vehicle`` (its learned torque remainder
+    dropped) carrying the network of ``hybrid_vehicle`` (a ``qr learn residual`` output), trained elsewhere:
+    the workflow's chain flies the first set's network on the carry-to set's own model, and fine-tunes it."""
+    from ..atomic import atomic_dir
+    from ..vehicle import load_vehicle, save_vehicle
+
+    raw = load_vehicle(extended_vehicle).to_dict()
+    raw.pop("torque_remainder", None)
+    res = load_vehicle(hybrid_vehicle)
+    raw["residual"] = dict(res.raw["residual"])
+    raw["residual"]["model"] = str((Path(hybrid_vehicle).parent / res.raw["residual"]["model"]).resolve())
+    with atomic_dir(out, command="qr learn residual (carried)") as tmp:
+        save_vehicle(raw, tmp / "hybrid_vehicle.yaml",
+                     header=f"{extended_vehicle} (physical part) with the network of {hybrid_vehicle}, carried over")
+        load_vehicle(tmp / "hybrid_vehicle.yaml")
+
+
 def _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh) -> dict:
     import torch
 

@@ -1,0 +1,14 @@
+"""Snakemake rule `evaluate_learned`: the rollout-trained residuals on a set's held-out flights."""
+import sys
+from pathlib import Path
+
+from qr.stages.evaluate import evaluate_learned
+
+carried = [Path(snakemake.input.carried) / "hybrid_vehicle.yaml"] if snakemake.input.carried else []
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    evaluate_learned(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle,
+                     [*carried, Path(snakemake.input.residual) / "hybrid_vehicle.yaml"],
+                     ["hybrid (rollout-trained, carried over)", "hybrid (rollout-trained, fine-tuned)"] if carried
+                     else ["hybrid (rollout-trained)"], snakemake.output[0],
+                     track=f"learned:{snakemake.wildcards.set}", estimates=snakemake.input.crossfit)
