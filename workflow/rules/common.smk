@@ -42,7 +42,8 @@ _unknown = [n for n in config.get("sets") or [] if n not in DATA["sets"]]
 if _unknown:
     raise WorkflowError(f"{DATA_FILE}: no set {', '.join(_unknown)} (it has {', '.join(DATA['sets'])}); fix: "
                         "--config sets=[...] with the data set's names, or leave `sets` out to run them all")
-SETS = {name: dict(DATA["sets"][name]) for name in (config.get("sets") or DATA["sets"])}
+SETS = {name: dict(DATA["sets"][name]) for name in (config.get("sets") or DATA["sets"])
+        if name not in (config.get("skip_sets") or [])}
 if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the first N flights of each set
     for _s in SETS.values():
         _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
