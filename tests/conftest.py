@@ -21,6 +21,18 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config, items):
+    """The workflow tests share one reduced run per xdist group; if `--dist loadgroup` stops grouping
+    (pytest 9.2 with xdist 3.8 did), every worker would run it again: refuse rather than pay twice."""
+    if not getattr(config.option, "loadgroup", False):  # set on each worker under --dist loadgroup
+        return
+    ungrouped = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
+    if ungrouped:
+        raise pytest.UsageError(f"--dist loadgroup did not group {ungrouped[0]} (pytest/pytest-xdist "
+                                "versions); install from environment.lock")
+
+
 @pytest.fixture(autouse=True)
 def _isolated(tmp_path, monkeypatch):
     """Every test gets its own results dir; MLflow off unless a test turns it on."""

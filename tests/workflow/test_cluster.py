@@ -75,6 +75,9 @@ def test_slurm_profile_and_launcher_resolve(tmp_path):
     assert "cpus_per_task=8" in log and "runtime=120" in log  # the learn_sweep jobs' SLURM resources
     from hydra import compose, initialize_config_dir
 
+    from qr.config import register_schemas
+
+    register_schemas()  # as every qr entry point does before composing
     with initialize_config_dir(str(ROOT / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["hydra/launcher=slurm", "hydra.launcher.partition=p1"],
                       return_hydra_config=True)

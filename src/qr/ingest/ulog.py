@@ -162,8 +162,14 @@ def read(path: str | Path, check: bool = True) -> pd.DataFrame:
 
 def _read(log: _Log) -> pd.DataFrame:
     t_us, p_ned, q_ned, pose_src = _pose(log)
-    keep = np.concatenate([[True], np.diff(t_us) > 0])  # repeated stamps: the first sample stands
+    keep = np.concatenate([[True], np.diff(t_us) != 0])  # repeated stamps: the first sample stands
     t_us, p_ned, q_ned = t_us[keep], p_ned[keep], q_ned[keep]
+    back = np.flatnonzero(np.diff(t_us) < 0)
+    if back.size:  # PX4 stamps each topic from one monotonic clock: a stamp that goes back is damage
+        i = back[0] + 1
+        raise QrInputError(log.path, f"the {pose_src} timestamps go back at sample {i} (from "
+                                     f"{t_us[i - 1] * 1e-6:.6g} s to {t_us[i] * 1e-6:.6g} s): the log is damaged",
+                           "copy the log from the vehicle again, or give a flight whose stamps only increase")
     t0 = t_us[0]
     t = (t_us - t0) * 1e-6
 
