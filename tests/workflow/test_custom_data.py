@@ -34,7 +34,7 @@ def custom_run(tmp_path_factory):
     for i in range(2):
         out = tmp / f"synth{i}"
         write_synth(out, vehicle, [parse_effect_spec("linear_drag:kx=0.3,ky=0.3,kz=0.15")],
-                    SynthConfig(duration=40.0, rate=100.0, seed=10 + i))
+                    SynthConfig(duration=24.0, rate=100.0, seed=10 + i))  # 2 x 24 s: the drag to 1 %
         flight = pd.read_csv(out / "flight.csv")
         flight.to_csv(data / "csv" / f"f{i}.csv", index=False)
         write_bag(flight, data / "bags" / f"f{i}", "sqlite3", rpm_to_rad_s=2 * 3.141592653589793 / 60)
