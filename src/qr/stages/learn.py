@@ -41,10 +41,7 @@ import pandas as pd
 from .. import datasets
 from ..errors import QrInputError
 
-try:
-    from hydra.experimental.callback import Callback
-except ImportError:  # pragma: no cover
-    Callback = object
+from .sweep_callback import SweepCallback
 
 STAGE = "learn"
 PARENT_FILE = ".mlflow_parent"
@@ -335,16 +332,10 @@ class _Progress(threading.Thread):
                     break
 
 
-class LearnSweep(Callback):
-    def __init__(self):
-        self._cm = self._run = self._progress = None
-
-    # Launchers pickle the callbacks along with each job; workers need none of the parent's state.
-    def __getstate__(self):
-        return {}
-
-    def __setstate__(self, state):
-        self.__init__()
+class LearnSweep(SweepCallback):
+    def reset(self) -> None:
+        super().reset()
+        self._run = self._progress = None
 
     def on_multirun_start(self, config, **kwargs) -> None:
         if not _is_learn(config):
@@ -395,17 +386,9 @@ class LearnSweep(Callback):
             self._progress = None
 
     def _close(self, exc) -> None:
-        if self._cm is None:
-            return
-        self._stop_progress()
-        cm, self._cm = self._cm, None
-        if exc is None:
-            cm.__exit__(None, None, None)
-        else:
-            try:
-                cm.__exit__(type(exc), exc, None)
-            except type(exc):
-                pass
+        if self._cm is not None:
+            self._stop_progress()
+        super()._close(exc)
 
 
 def copy_best(runs_csv, dest) -> pd.Series:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import QrInputError
+from .sweep_callback import SweepCallback
 
 OUTPUTS = ("hybrid_vehicle.yaml", "residual.npz", "training.json", "report.md", "figures/")
 SCHEMA = "qr.residual/1"
@@ -398,12 +399,6 @@ def collect(out, since: float = 0.0) -> "pd.DataFrame":  # noqa: F821
     return pd.DataFrame(rows)
 
 
-try:
-    from hydra.experimental.callback import Callback
-except ImportError:  # pragma: no cover
-    Callback = object
-
-
 def _is_mine(config) -> bool:
     try:
         return config.hydra.job.name == JOB
@@ -411,19 +406,14 @@ def _is_mine(config) -> bool:
         return False
 
 
-class ResidualSweep(Callback):
+class ResidualSweep(SweepCallback):
     """A ``qr learn residual -m`` multirun: one MLflow parent run, ``OUTDIR/sweep.csv`` at the end (the job
     with the lowest validation loss tagged; never chosen on held-out flights: none are read)."""
 
-    def __init__(self):
-        self._cm = self._run = None
+    def reset(self) -> None:
+        super().reset()
+        self._run = None
         self._started = 0.0
-
-    def __getstate__(self):
-        return {}
-
-    def __setstate__(self, state):
-        self.__init__()
 
     def on_multirun_start(self, config, **kwargs) -> None:
         if not _is_mine(config):
@@ -462,14 +452,3 @@ class ResidualSweep(Callback):
         (out / PARENT_FILE).unlink(missing_ok=True)
         self._close(None)
 
-    def _close(self, exc) -> None:
-        if self._cm is None:
-            return
-        cm, self._cm = self._cm, None
-        if exc is None:
-            cm.__exit__(None, None, None)
-        else:
-            try:
-                cm.__exit__(type(exc), exc, None)
-            except type(exc):
-                pass
