@@ -255,11 +255,7 @@ def _reference(pieces: list[Piece], vehicle, H: int) -> np.ndarray:
     parts = []
     for pc in pieces:
         if len(pc.train):
-            keep = np.zeros(len(pc.windows.t), bool)
-            keep[pc.train] = True
-            w = pc.windows
-            parts.append({"rf": score_plant(Windows(w.t, w.X0, w.U, keep, w.tp, w.tq, w.tv, w.tw), H, P,
-                                            RATE_FROZEN)})
+            parts.append({"rf": score_plant(pc.windows.scored_at(pc.train), H, P, RATE_FROZEN)})
     s, c = pool(parts)["rf"]
     with np.errstate(invalid="ignore", divide="ignore"):
         ref = np.nanmean(s / c, axis=0)
@@ -387,9 +383,6 @@ def validation_blocks(pieces: list[Piece], vehicles: dict, H: int) -> dict:
     parts = []
     for pc in pieces:
         if len(pc.val):
-            keep = np.zeros(len(pc.windows.t), bool)
-            keep[pc.val] = True
-            w = pc.windows
-            wk = Windows(w.t, w.X0, w.U, keep, w.tp, w.tq, w.tv, w.tw)
+            wk = pc.windows.scored_at(pc.val)
             parts.append({k: score_plant(wk, H, P, mode) for k, (P, mode) in plants.items()})
     return {k: summary(*v) for k, v in pool(parts).items()}

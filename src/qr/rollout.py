@@ -18,7 +18,7 @@ nanodrone-sysid-benchmark's physics baseline).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numba as nb
@@ -146,6 +146,12 @@ class Windows:
     tq: np.ndarray  # (n, 4) measured attitude
     tv: np.ndarray  # (n, 3) estimated velocity
     tw: np.ndarray  # (n, 3) estimated body rate
+
+    def scored_at(self, starts: np.ndarray) -> "Windows":
+        """The same piece with only ``starts`` scored."""
+        keep = np.zeros(len(self.t), bool)
+        keep[starts] = True
+        return replace(self, ok=keep)
 
     def inputs(self, P: np.ndarray) -> np.ndarray:
         """The rotor speeds acting at each sample for the plant ``P`` (its actuator delay applied)."""
