@@ -20,6 +20,7 @@ rule evaluate_held_out:
         "results/logs/evaluate/{set}.log",
     benchmark:
         "results/benchmarks/evaluate/{set}.tsv"
+    priority: CHAIN_PRIORITY  # learn.smk
     params:
         overrides=lambda wc: diagnosis_overrides(wc.set, extra=EVAL.get("experiments", []),
                                                  extra_overrides=EVAL.get("overrides", [])),
@@ -47,6 +48,7 @@ rule evaluate_learned:
         "results/logs/evaluate/{set}_learned.log",
     benchmark:
         "results/benchmarks/evaluate/{set}_learned.tsv"
+    priority: CHAIN_PRIORITY  # learn.smk
     conda:
         "../envs/qr.yaml"
     script:

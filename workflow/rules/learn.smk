@@ -84,6 +84,11 @@ rule learn_best:
         "../scripts/learn_best.py"
 
 
+# The residual chain (training diagnosis -> residual -> carried -> fine-tuned -> its rollout) is the run's
+# longest serial path: its jobs go first when two are ready.
+CHAIN_PRIORITY = 10
+
+
 # A residual trained through the rollout (qr learn residual, docs/spec/hybrid.md) on a set's training flights
 # (every third flight held out, as rule evaluate_held_out holds it out), on top of the physical part of that
 # rule's extended vehicle (the refined one, `physical (refined)`).  The chain's carry-to set (the payload)
@@ -103,6 +108,7 @@ rule learn_residual:
         "results/logs/learn/residual_{set}.log",
     benchmark:
         "results/benchmarks/learn/residual_{set}.tsv"
+    priority: CHAIN_PRIORITY
     params:
         overrides=["learn.keep_remainder=false", *LEARN.get("residual", [])],
     conda:
@@ -124,6 +130,7 @@ if RESIDUAL_CARRY:
             "results/logs/learn/residual_carried.log",
         benchmark:
             "results/benchmarks/learn/residual_carried.tsv"
+        priority: CHAIN_PRIORITY
         conda:
             "../envs/qr.yaml"
         script:
