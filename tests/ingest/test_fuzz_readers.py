@@ -220,6 +220,7 @@ PX4_SMALL = VEHICLES.parents[1].parent / "shared" / "data" / "px4-ulog-samples" 
 @FUZZ
 @given(**damage)
 @example(cut=1.0, flips=[])  # the intact log
+@example(cut=0.8453242092632538, flips=[(0.28898446210299583, 1)])  # a pose stamp jumps ahead and back
 def test_ulog_reader(tmp_path_factory, cut, flips):
     from qr.ingest import ulog
 

@@ -121,6 +121,25 @@ def test_qr_ingest_of_a_px4_log_with_commands_only_says_what_is_missing(tmp_path
     assert not out.exists()
 
 
+def test_a_px4_log_whose_stamps_go_back_is_refused_as_damaged(tmp_path):
+    """One pose stamp corrupted far ahead (a flipped bit): the next goes back; refused, never reordered."""
+    from ulog_writer import write_ulog
+
+    from qr.errors import QrInputError
+
+    t = np.arange(0, 5, 0.01)
+    t_log = t.copy()
+    t_log[200] = 300.0
+    p = np.column_stack([np.sin(t), np.cos(t), 1 + 0 * t])
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    write_ulog(tmp_path / "f.ulg", t_log, p, q, np.full((len(t), 4), 0.5), rpm=np.full((len(t), 4), 12000))
+    with pytest.raises(QrInputError, match=r"timestamps go back at sample 201 \(from 301 s to 3.01 s\)"):
+        ulog.read(tmp_path / "f.ulg", check=False)
+    t_log[200] = t[200]  # the same log intact reads
+    write_ulog(tmp_path / "g.ulg", t_log, p, q, np.full((len(t), 4), 0.5), rpm=np.full((len(t), 4), 12000))
+    assert len(ulog.read(tmp_path / "g.ulg", check=False)) == len(t)
+
+
 @needs_logs
 @pytest.mark.parametrize("name, problem", [
     ("sample.ulg", "the vehicle was never armed in this log"),  # vehicle_status.arming_state 0 throughout
