@@ -70,3 +70,18 @@ def test_the_report_opens_on_the_overview(clean):
     style = re.search(r"<style>(.*?)</style>", fragment, re.S).group(1)
     assert all(line.startswith(".qr-overview") or ":has(.qr-overview)" in line
                for line in style.strip().splitlines())
+
+
+def test_the_held_out_rollout_names_the_vehicle_files_it_compared(clean):
+    """evaluation.json lists each compared vehicle by a file that is still there after the run (the models
+    the training diagnosis gives are kept beside it), with the label the tables use."""
+    import json
+    from pathlib import Path
+
+    docs = sorted((clean / "evaluation").glob("*/held_out/evaluation.json"))
+    assert docs
+    for p in docs:
+        doc = json.loads(p.read_text())
+        assert set(doc["labels"].values()) >= {"nominal", "extended", "hybrid"}, doc["labels"]
+        for v in doc["vehicles"]:
+            assert (clean.parent / v).is_file() or Path(v).is_file(), v  # not in a temporary folder

@@ -191,8 +191,6 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     if len(flights) < 2:
         raise QrInputError(flights[0] if flights else None, "one flight cannot be held out by flight",
                            "give two flights or more")
-    import tempfile
-
     train, test = held_out_by_flight(flights)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     if len(train) == 1 and single_overrides:
@@ -201,18 +199,23 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     run_diagnosis(train, vehicle, diag_out, list(overrides), track=False, figures=False,
                   reports=[reports[f] for f in train], log=lambda m: None,
                   estimates=[stored[f] for f in train] if stored else None)
-    with tempfile.TemporaryDirectory() as tmp:
-        models, labels = held_out_models(vehicle, diag_out, Path(tmp))
-        return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
-                              track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels)
+    # the compared vehicle files stay beside the training diagnosis they come from: evaluation.json names them
+    models_dir = Path(diag_out) / HELD_OUT_MODELS
+    models_dir.mkdir(exist_ok=True)
+    models, labels = held_out_models(vehicle, diag_out, models_dir)
+    return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
+                          track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels)
 
 
-def held_out_models(vehicle, diag_out, tmp: Path) -> tuple[list[str], list[str]]:
+HELD_OUT_MODELS = "held_out_models"  # (in the training diagnosis's folder)
+
+
+def held_out_models(vehicle, diag_out, out_dir: Path) -> tuple[list[str], list[str]]:
     """The vehicle files the held-out rollout scores, and their labels, from a training diagnosis in
     ``diag_out``: the nominal vehicle; the extended one (the equation-error estimates); with
     ``diagnose.refine=rollout`` the refined physical model (``physical (refined)``); with a learned torque
     remainder the equation-error model plus it (``hybrid``).  Those not written as such are written to
-    ``tmp``."""
+    ``out_dir``."""
     import json
 
     from ..vehicle import load_vehicle, save_vehicle
@@ -224,8 +227,8 @@ def held_out_models(vehicle, diag_out, tmp: Path) -> tuple[list[str], list[str]]
     models, labels = [str(vehicle)], ["nominal"]
 
     def add(raw, name, label):
-        save_vehicle(raw, tmp / name)
-        models.append(str(tmp / name))
+        save_vehicle(raw, out_dir / name)
+        models.append(str(out_dir / name))
         labels.append(label)
 
     raw = ext.to_dict()
