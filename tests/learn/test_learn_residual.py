@@ -156,15 +156,21 @@ def test_a_carried_network_flies_on_another_vehicle_file(flights, trained, tmp_p
     from qr.stages.learn_residual import carry_residual
     from qr.vehicle import load_vehicle, save_vehicle
 
-    _, out = trained
+    _, trained_out = trained
+    out = tmp_path / "trained"  # beside the carried folder: the relative paths between them stay short
+    shutil.copytree(trained_out, out)
     W = np.full((3, 11), 1e-4)
     other = load_vehicle(flights / "a" / "vehicle.yaml").with_changes(
         mass=0.8, torque_remainder={"weights": W.tolist()},
         effects=[{"name": "linear_drag", "parameters": {"kx": 0.1, "ky": 0.1, "kz": 0.05}}])
     save_vehicle(other, tmp_path / "extended_vehicle.yaml")
     carry_residual(tmp_path / "extended_vehicle.yaml", out / "hybrid_vehicle.yaml", tmp_path / "carried")
-    shutil.move(tmp_path / "carried", tmp_path / "moved")  # the network is found after a move of the file
-    v = load_vehicle(tmp_path / "moved" / "hybrid_vehicle.yaml")
+    # carried again into its own previous output (the temporary folder is then built inside it)
+    carry_residual(tmp_path / "extended_vehicle.yaml", out / "hybrid_vehicle.yaml", tmp_path / "carried")
+    assert load_vehicle(tmp_path / "carried" / "hybrid_vehicle.yaml").residual is not None
+    (tmp_path / "a").mkdir()
+    shutil.move(tmp_path / "carried", tmp_path / "a" / "moved")  # the network is found after a move of the folder
+    v = load_vehicle(tmp_path / "a" / "moved" / "hybrid_vehicle.yaml")
     assert v.mass == 0.8 and v.effects == other.effects and "torque_remainder" not in v.raw
     trained_net = load_vehicle(out / "hybrid_vehicle.yaml").residual
     for a, b in zip(v.residual.weights + v.residual.biases, trained_net.weights + trained_net.biases):

@@ -173,7 +173,7 @@ class Refinement:
             "method": "rollout",
             "loss": "L = 1/2 sum_windows sum_h sum_s |e_s,h|^2 / (N ref_s^2), s in p, v, R (rotation vector), w; "
                     "ref_s = rate_frozen's mean error over h on the training windows",
-            "minimiser": "Levenberg-Marquardt within the plausible bounds, central-difference Jacobian of the "
+            "minimiser": "Levenberg-Marquardt within the plausible bounds, forward-difference Jacobian of the "
                          "compiled rollout",
             "covariance": f"Gauss-Newton sandwich, the windows' gradients' long-run covariance over {self.lag} "
                           "neighbouring windows (Bartlett weights)",

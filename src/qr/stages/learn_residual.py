@@ -125,15 +125,20 @@ def carry_residual(extended_vehicle, hybrid_vehicle, out) -> None:
     """``out/hybrid_vehicle.yaml``: the physical part of ``extended_vehicle`` (its learned torque remainder
     dropped) carrying the network of ``hybrid_vehicle`` (a ``qr learn residual`` output), trained elsewhere:
     the workflow's chain flies the first set's network on the carry-to set's own model, and fine-tunes it."""
+    import shutil
+
     from ..atomic import atomic_dir
     from ..vehicle import load_vehicle, save_vehicle
 
     raw = load_vehicle(extended_vehicle).to_dict()
     raw.pop("torque_remainder", None)
     res = load_vehicle(hybrid_vehicle)
-    raw["residual"] = dict(res.raw["residual"])
-    raw["residual"]["model"] = str((Path(hybrid_vehicle).parent / res.raw["residual"]["model"]).resolve())
+    model = Path(hybrid_vehicle).parent / res.raw["residual"]["model"]
+    # the network copied beside the file: a path to another folder, written from the temporary folder,
+    # would be one level off when the output folder already exists (atomic_dir builds inside it then)
+    raw["residual"] = {**res.raw["residual"], "model": model.name}
     with atomic_dir(out, command="qr learn residual (carried)") as tmp:
+        shutil.copyfile(model, tmp / model.name)
         save_vehicle(raw, tmp / "hybrid_vehicle.yaml",
                      header=f"{extended_vehicle} (physical part) with the network of {hybrid_vehicle}, carried over")
         load_vehicle(tmp / "hybrid_vehicle.yaml")
