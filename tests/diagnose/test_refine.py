@@ -186,3 +186,31 @@ def test_a_wrong_refine_setting_is_one_line():
         DiagnoseConfig.from_dict({"refine": "yes"})
     with pytest.raises(QrInputError, match=r"diagnose.refine_delay: 'no' is not true or false"):
         DiagnoseConfig.from_dict({"refine_delay": "no"})
+
+
+def test_no_refinement_on_a_flight_the_model_does_not_describe(tmp_path, capsys):
+    """A flight written scalar-last with the convention checks skipped: the model does not describe it, so
+    nothing is named and nothing is refined or written into the vehicle (J, C_T, C_Q stay the file's)."""
+    import json
+
+    import pandas as pd
+
+    from conftest import VEHICLES, run_cli
+    from qr.vehicle import load_vehicle
+
+    assert run_cli(["synth", "--vehicle", VEHICLES / "asctec_hummingbird.yaml", "--duration", "40", "--seed", "5",
+                    "--effect", "linear_drag:kx=0.3,ky=0.3,kz=0.15", "--out", tmp_path / "s"], capsys)[0] == 0
+    flight = tmp_path / "s" / "flight.csv"
+    df = pd.read_csv(flight)
+    df[["qw", "qx", "qy", "qz"]] = df[["qx", "qy", "qz", "qw"]].to_numpy()
+    df.to_csv(flight, index=False)
+    status, _, err = run_cli(["diagnose", flight, "--vehicle", tmp_path / "s" / "vehicle.yaml", "--out",
+                              tmp_path / "d", "diagnose.skip_checks=[thrust_axis,rotor_layout]",
+                              "diagnose.refine=rollout"], capsys)
+    assert status == 0, err
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert doc["described"] is False and doc["effects"] == [] and "refine" not in doc
+    nominal = load_vehicle(tmp_path / "s" / "vehicle.yaml")
+    written = load_vehicle(tmp_path / "d" / "extended_vehicle.yaml")
+    assert (written.thrust_coeff, written.torque_coeff, list(written.inertia)) == \
+        (nominal.thrust_coeff, nominal.torque_coeff, list(nominal.inertia))

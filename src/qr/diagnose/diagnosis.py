@@ -135,7 +135,6 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     states, rows = [e.states for e in estimates], [e.rows for e in estimates]
     labels = make_labels(states, [e.halves for e in estimates], vehicle, cfg, on_labels)
     fitted = identify(labels, vehicle, cfg, settings.seed, say)
-    # (a refinement of ``fitted`` by simulation error belongs here: it returns a Fit like it)
     supported, not_named = held_out_support(fitted, vehicle, cfg, settings.seed, say)
     final, held_out, dropped = check_held_out(supported, vehicle)
     effects = [e.in_vehicle() for e in final.effects]
@@ -145,17 +144,20 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say)
     rollout, beyond, accelerometer = _after_the_fit(states, rows, vehicle, final, held_out, effects, hybrid,
                                                     settings, say)
-    refinement, written = _refined(states, rows, vehicle, final, hybrid or extended, settings, say)
+    refinement, written = _refined(states, rows, vehicle, final, hybrid or extended, settings, say,
+                                   described=not held_out.misfit)
     statements, unresolved = _vehicle_file(final, vehicle, vehicle_file or vehicle.name, flights)
     return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
                      beyond, accelerometer, statements, unresolved, written, torque_rem, refinement)
 
 
-def _refined(states, rows, vehicle, final: Fit, extended: Vehicle, settings: Settings, say):
+def _refined(states, rows, vehicle, final: Fit, extended: Vehicle, settings: Settings, say,
+             described: bool = True):
     """(the refinement by simulation error, the vehicle written): with ``diagnose.refine=rollout`` the named
     effects' parameters and the vehicle's J, C_T, C_Q refined by the rollout's error
-    (:mod:`qr.diagnose.refine`), as far as it may write them; else (None, ``extended``)."""
-    if settings.diagnose.refine != "rollout":
+    (:mod:`qr.diagnose.refine`), as far as it may write them; else (None, ``extended``).  Not on flights
+    the model does not describe (``described`` false: the held-out misfit): no coefficient of it is written."""
+    if settings.diagnose.refine != "rollout" or not described:
         return None, extended
     from .refine import refine_diagnosis
 
