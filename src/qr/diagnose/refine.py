@@ -67,10 +67,10 @@ LABELS = {("inertia_error", "dJxx"): "J_xx", ("inertia_error", "dJyy"): "J_yy", 
 
 @dataclass(frozen=True)
 class RefineSettings:
-    """What the refinement needs (``diagnose.refine_*`` and ``evaluate.horizon``, ``max_input_gap``)."""
+    """What the refinement needs (``diagnose.refine_*`` and ``evaluate.horizon``; the windows are built
+    with ``evaluate.max_input_gap`` before)."""
 
     horizon: int = 50  # H, steps of each window
-    max_input_gap: int = 2
     stride: int = 5  # every stride-th training start (neighbouring windows share H − stride steps)
     iterations: int = 30  # at most, Levenberg–Marquardt
     block_s: float = 2.0  # the covariance's bandwidth, s (at least 4 H steps)
@@ -857,7 +857,7 @@ def refine_diagnosis(states_list, measured_list, windows: list[dict], vehicle, e
     measured = [on_stamps(m, st["t"]) for st, m in zip(states_list, measured_list)]
     train, held_out, noise = diagnosis_windows(states_list, measured, owner, windows, ecfg.horizon,
                                                ecfg.max_input_gap, dcfg.trim_s)
-    settings = RefineSettings(horizon=ecfg.horizon, max_input_gap=ecfg.max_input_gap, stride=dcfg.refine_stride,
+    settings = RefineSettings(horizon=ecfg.horizon, stride=dcfg.refine_stride,
                               iterations=dcfg.refine_iterations, block_s=dcfg.block_s, delay=dcfg.refine_delay,
                               exclude=tuple(dcfg.exclude))
     return refine(train, held_out, vehicle, effects, settings, noise, seed, log)
