@@ -91,7 +91,8 @@ Installed as the control callback, the wrench is evaluated wherever MuJoCo evalu
 each of the 4 stages of its RK4 step), as qr's plant evaluates it.  Without the callback, calling
 wrench = LearnedWrench(model); wrench(model, data) before each mj_step holds it over the step (an error
 of first order in the step).  The callback owns the body's row of xfrc_applied: put your own pushes in
-wrench.extra (6 numbers, world frame: force N, torque N m).  MuJoCo has one control callback per process.
+wrench.extra (6 numbers, world frame: force N, torque N m).  MuJoCo has one control callback per process,
+and compiles no model while a Python one is installed: load the models first, install after.
 The network is evaluated in NumPy from its weights beside this module (no torch, no qr needed).
 """
 import contextlib
