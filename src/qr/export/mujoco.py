@@ -223,8 +223,9 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             "site rotor_i@pos", ", ".join(f"({g(x)}, {g(y)}, 0)" for x, y in pp.rotor_xy), EXACT,
             "sites in the vehicle file's frame (its origin, not the CG: the inertial pos carries the CG)",
             formula="(x_i, y_i, 0)"),
-        Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "actuator yaw_i@gear[5] sign",
-            ", ".join(f"{s:+g}" for s in pp.yaw_signs), EXACT, "the yaw gear carries yaw_sign", formula="s_i"),
+        Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "actuator yaw_i@gear[5]",
+            "signs " + ", ".join("+" if s > 0 else "−" for s in pp.yaw_signs), EXACT,
+            "the yaw gear carries yaw_sign (torque_coeff row)"),
         Row("rotor_speed_min, rotor_speed_max", f"{g(vehicle.rotor_speed_min)}, {g(vehicle.rotor_speed_max)} "
             f"{vehicle.rotor_speed_unit}", "actuator@ctrlrange", f"{g(pp.speed_min**2)}, {g(pp.speed_max**2)} (rad/s)²",
             EXACT, "ctrl is ω² in (rad/s)²", formula="(f · u_min)², (f · u_max)²"),
