@@ -26,22 +26,17 @@ from qr.vehicle import load_vehicle, save_vehicle
 
 EXTENDED = ROOT / "tests" / "export" / "crazyflie21_brushless_extended.yaml"
 TARGETS = ("rotorpy", "mujoco", "px4-gz")
-EXAMPLE = {  # effect parameters of the size the brushless set has (the others: the catalog's neutral values)
-    "linear_drag": {"kx": 0.0128, "ky": 0.0126, "kz": 0.0098},
-    "quadratic_drag": {"cx": 0.01, "cy": 0.012, "cz": 0.02},
-    "rotor_drag": {"k": 2e-7},
-    "wind_force": {"fx": -0.0004, "fy": 0.0064, "fz": -0.0054},
-    "body_force_bias": {"bx": -0.004, "by": -0.005, "bz": -0.009},
-    "thrust_gain": {"gain": 1.025},
-    "mass_error": {"dm": 0.0017},
-    "ground_effect": {"k": 0.0004},
-    "motor_imbalance": {"d1": 0.03, "d2": -0.02, "d3": 0.0, "d4": 0.01},
-    "cg_offset": {"rx": -0.00034, "ry": 0.00009},
-    "torque_bias": {"tx": 1e-5, "ty": -2e-5, "tz": 1e-6},
-    "yaw_torque_gain": {"gain": 0.2},
-    "inertia_error": {"dJxx": 6.4e-6, "dJyy": 1e-6, "dJzz": -2e-6},
-    "marker_offset": {"rx": 0.003, "ry": -0.001, "rz": 0.018},
-    "blade_flapping": {"k": 6.9e-4},
+# effect parameters for the formulas' check: every one non-zero and distinct (a swapped symbol shows), of sizes
+# the Crazyflie files accept; an effect not listed (a new catalog entry) gets the catalog's neutral values
+EXAMPLE = {
+    "linear_drag": {"kx": 0.011, "ky": 0.013, "kz": 0.0097}, "quadratic_drag": {"cx": 0.009, "cy": 0.014, "cz": 0.021},
+    "rotor_drag": {"k": 1.7e-7}, "wind_force": {"fx": -0.0011, "fy": 0.0052, "fz": -0.0043},
+    "body_force_bias": {"bx": -0.0031, "by": -0.0047, "bz": -0.0083}, "thrust_gain": {"gain": 1.031},
+    "mass_error": {"dm": 0.0019}, "ground_effect": {"k": 0.00035},
+    "motor_imbalance": {"d1": 0.027, "d2": -0.018, "d3": 0.006, "d4": 0.011},
+    "cg_offset": {"rx": -0.00041, "ry": 0.00012}, "torque_bias": {"tx": 1.3e-5, "ty": -2.2e-5, "tz": 1.1e-6},
+    "yaw_torque_gain": {"gain": 0.23}, "inertia_error": {"dJxx": 5.9e-6, "dJyy": 1.2e-6, "dJzz": -2.1e-6},
+    "marker_offset": {"rx": 0.0027, "ry": -0.0013, "rz": 0.017}, "blade_flapping": {"k": 6.1e-4},
     "actuator_delay": {"delay_s": 0.012},
 }
 NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?(?![\w.])")

@@ -73,8 +73,9 @@ def literal(x, number) -> str:
     return number(x)
 
 
-# The network in NumPy, as the exported modules hold it (``RESIDUAL``: the dict of residual_spec, or None).
-NETWORK_SOURCE = '''
+# The learned terms in NumPy, as the exported modules hold them (module globals: ``RESIDUAL``, the dict of
+# residual_spec or None; ``REMAINDER``, the torque remainder's W (3 x 11) or None; ``REMAINDER_HOVER_SPEED``, rad/s).
+LEARNED_SOURCE = '''
 def _load_network(spec):
     """The learned wrench's layers [(W, b), ...] from its .npz beside this module (None without one)."""
     if spec is None:
@@ -88,7 +89,7 @@ NETWORK = _load_network(RESIDUAL)
 
 
 def residual_wrench(v_b, omega, g_b, rotor_speeds):
-    """The learned body force (N) and torque (N m) at the CG, body frame: qr's network (qr.residual) in NumPy,
+    """The network's body force (N) and torque (N m) at the CG, body frame: qr's network (qr.residual) in NumPy,
     from the CG's velocity in the body frame, the body rate, the gravity direction in the body frame
     (R^T [0, 0, -1]) and the rotor speeds (rad/s)."""
     s = np.asarray(rotor_speeds, float) / RESIDUAL["rotor_speed_scale"]
@@ -101,4 +102,18 @@ def residual_wrench(v_b, omega, g_b, rotor_speeds):
             z = np.tanh(z) if RESIDUAL["activation"] == "tanh" else np.maximum(z, 0.0)
     w = z * RESIDUAL["output_scale"]
     return w[:3], w[3:]
+
+
+def learned_wrench(v_b, omega, g_b, rotor_speeds):
+    """Body force (N) and torque (N m) at the CG of every learned term: the torque remainder
+    W [v_b, omega, (omega_i / omega_hover)^2 - 1, 1] (qr.torque_remainder) and the network."""
+    force, torque = np.zeros(3), np.zeros(3)
+    if REMAINDER is not None:
+        speeds = np.asarray(rotor_speeds, float)
+        torque += REMAINDER @ np.concatenate([v_b, omega, (speeds / REMAINDER_HOVER_SPEED) ** 2 - 1.0, [1.0]])
+    if NETWORK is not None:
+        f, t = residual_wrench(v_b, omega, g_b, rotor_speeds)
+        force += f
+        torque += t
+    return force, torque
 '''

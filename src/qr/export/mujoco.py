@@ -110,6 +110,8 @@ TERMS = {{
 {terms}
 }}
 RESIDUAL = TERMS["residual"]
+REMAINDER = None if TERMS["torque_remainder"] is None else np.asarray(TERMS["torque_remainder"], float)
+REMAINDER_HOVER_SPEED = TERMS["remainder_hover_speed"]
 {network}
 
 
@@ -136,8 +138,6 @@ class LearnedWrench:
         self.thrust = np.array([mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"thrust{{i}}")
                                 for i in range(1, N_ROTORS + 1)])
         self.extra = np.zeros(6)
-        W = TERMS["torque_remainder"]
-        self._W = None if W is None else np.asarray(W, float)
 
     def rotor_speeds(self, model, data):
         """Rotor speeds (rad/s) from the thrust actuators' ctrl (clamped to their range, as MuJoCo clamps it)."""
@@ -149,15 +149,7 @@ class LearnedWrench:
         R = _rotation(data.qpos[self.qpos + 3:self.qpos + 7])
         omega = np.array(data.qvel[self.qvel + 3:self.qvel + 6])  # body frame (free joint)
         v_b = R.T @ data.qvel[self.qvel:self.qvel + 3] + np.cross(omega, CG)  # the CG's velocity, body frame
-        speeds = self.rotor_speeds(model, data)
-        force, torque = np.zeros(3), np.zeros(3)
-        if self._W is not None:
-            phi = np.concatenate([v_b, omega, (speeds / TERMS["remainder_hover_speed"]) ** 2 - 1.0, [1.0]])
-            torque += self._W @ phi
-        if NETWORK is not None:
-            f, t = residual_wrench(v_b, omega, -R[2], speeds)
-            force += f
-            torque += t
+        force, torque = learned_wrench(v_b, omega, -R[2], self.rotor_speeds(model, data))  # g_b = R^T [0, 0, -1]
         return force, torque, R
 
     def __call__(self, model, data):
@@ -200,7 +192,7 @@ def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
     return WRENCH_MODULE.format(name=vehicle.name, path=path, version=version, xml=f"{file_stem(vehicle)}.xml",
                                 what=what, body=vehicle.name, module=wrench_module(vehicle), n=len(pp.yaw_signs),
                                 cg=", ".join(repr(float(x)) for x in (pp.cg[0], pp.cg[1], 0.0)), terms=terms,
-                                network=learned.NETWORK_SOURCE)
+                                network=learned.LEARNED_SOURCE)
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:

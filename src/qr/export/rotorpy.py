@@ -137,6 +137,8 @@ QR_TERMS = {{
 
 MIN_GROUND_HEIGHT = {min_h}  # m, as qr's plant: keeps k T / h^2 finite in a crash
 RESIDUAL = QR_TERMS["residual"]
+REMAINDER = None if QR_TERMS["torque_remainder"] is None else np.asarray(QR_TERMS["torque_remainder"], float)
+REMAINDER_HOVER_SPEED = QR_TERMS["remainder_hover_speed"]
 {network}
 
 
@@ -167,9 +169,7 @@ class QrMultirotor(Multirotor):
             kwargs["aero"] = False
         super().__init__(quad_params if params is None else params,
                          hover_state() if initial_state is None else initial_state, **kwargs)
-        t = QR_TERMS
-        self._scale = np.asarray(t["thrust_scale"], float)
-        self._W = None if t["torque_remainder"] is None else np.asarray(t["torque_remainder"], float)
+        self._scale = np.asarray(QR_TERMS["thrust_scale"], float)
 
     def qr_wrench(self, s):
         """(world force, body force, body moment) qr's model adds to RotorPy's at the packed state s."""
@@ -190,13 +190,9 @@ class QrMultirotor(Multirotor):
         if t["ground_effect"]:
             h = max(s[2] + R[2] @ t["marker_offset"] - t["ground_z"], MIN_GROUND_HEIGHT)
             F[2] += t["ground_effect"] * (self._scale * thrust).sum() / h**2
-        if self._W is not None:
-            phi = np.concatenate([vb, w, (speeds / t["remainder_hover_speed"])**2 - 1.0, [1.0]])
-            M += self._W @ phi
-        if NETWORK is not None:
-            f_learned, m_learned = residual_wrench(vb, w, -R[2], speeds)
-            F += f_learned
-            M += m_learned
+        f_learned, m_learned = learned_wrench(vb, w, -R[2], speeds)  # g_b = R^T [0, 0, -1]
+        F += f_learned
+        M += m_learned
         return np.asarray(t["wind_force"], float), F, M
 
     def _s_dot_fn(self, t, s, cmd_rotor_speeds):
@@ -221,7 +217,7 @@ def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> 
     terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(vehicle, pp).items())
     return MODULE.format(name=vehicle.name, path=path, version=version, module=module, params="\n".join(lines),
                          terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs),
-                         network=learned.NETWORK_SOURCE)
+                         network=learned.LEARNED_SOURCE)
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
