@@ -299,6 +299,11 @@ def common_rows(vehicle, pp: Plant, keys: dict[str, tuple]) -> list[Row]:
     for key in ("description", "source"):
         if key in raw:
             out.append(Row(key, "(text)", "-", "-", EXACT, "text, not physics: nothing to map"))
+    from ..vehicle import KNOWN
+
+    for key in sorted(set(map(str, raw)) - KNOWN):
+        out.append(Row(key, "(unknown key)", "-", "-", IMPOSSIBLE, "not a key qr knows: qr ignores it (warned at "
+                       "load), so the export carries nothing of it; check its spelling"))
     if vehicle.command_map is not None:
         out.append(Row("rotor_input, command_map", "command: a + b c + k c² N", "-", "-", IMPOSSIBLE,
                        "the simulators take rotor speeds: give them qr's equivalent speeds u = sqrt(F / C_T) "
