@@ -4,9 +4,10 @@ One place for the unit conversions (qr's rotor-speed unit → rad/s) and for the
 simulators receive: the TRUE plant's parameter vector (:func:`qr.sim.plant.true_params`), so an
 export carries exactly the physics ``qr synth``, the replay and the rollout integrate.  Each
 simulator module (:mod:`qr.export.rotorpy`, :mod:`qr.export.px4_gz`, :mod:`qr.export.mujoco`)
-turns that vector into its files and a list of :class:`Row` (the simulator's key, the value in its
-units, exact / approximate with the condition / impossible with the term's size and what the
-export does instead); :func:`render` writes them as ``mapping.md``.
+turns that vector into its files and a list of :class:`Row`, one for every key and named effect of
+the vehicle file (the simulator's key, the value in its units, the formula that gives it from the
+file's numbers, exact / approximate with the condition / impossible with the term's size and what
+the export does instead); :func:`render` writes them as ``mapping.md``.
 """
 
 from __future__ import annotations
