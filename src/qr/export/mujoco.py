@@ -19,6 +19,7 @@ MJCF element either: ``<name>_learned_wrench.py`` beside the MJCF applies them a
 
 from __future__ import annotations
 
+import textwrap
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -75,9 +76,7 @@ def wrench_module(vehicle) -> str:
 
 WRENCH_MODULE = '''"""{name} for MuJoCo: the learned terms of qr's model, which no MJCF element holds.
 
-Written by `qr export {path} --to mujoco` (qr {version}) beside {xml}.  The MJCF holds the rigid body and
-the rotors; this module adds {what} as MjData.xfrc_applied on the body {body!r}, at its CG, from the body's
-state and the rotor speeds (omega_i = sqrt(ctrl) of actuator thrust<i>):
+{intro}
 
     import mujoco
     import {module} as learned
@@ -112,8 +111,8 @@ TERMS = {{
 RESIDUAL = TERMS["residual"]
 REMAINDER = None if TERMS["torque_remainder"] is None else np.asarray(TERMS["torque_remainder"], float)
 REMAINDER_HOVER_SPEED = TERMS["remainder_hover_speed"]
-{network}
 
+{network}
 
 def speeds_to_ctrl(omega):
     """MjData.ctrl for rotor speeds omega (rad/s): the thrust and yaw actuators of each rotor get omega^2."""
@@ -189,8 +188,11 @@ def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
                                          vehicle.residual is not None)) if on)
     terms = "\n".join(f"    '{k}': {learned.literal(v, lambda x: repr(float(x)))}," for k, v in
                       wrench_terms(vehicle, pp).items())
-    return WRENCH_MODULE.format(name=vehicle.name, path=path, version=version, xml=f"{file_stem(vehicle)}.xml",
-                                what=what, body=vehicle.name, module=wrench_module(vehicle), n=len(pp.yaw_signs),
+    intro = textwrap.fill(f"Written by `qr export {path} --to mujoco` (qr {version}) beside {file_stem(vehicle)}.xml. "
+                          f"The MJCF holds the rigid body and the rotors; this module adds {what} as "
+                          f"MjData.xfrc_applied on the body {vehicle.name!r}, at its CG, from the body's state and "
+                          "the rotor speeds (omega_i = sqrt(ctrl) of actuator thrust<i>):", 108)
+    return WRENCH_MODULE.format(name=vehicle.name, intro=intro, xml=f"{file_stem(vehicle)}.xml", body=vehicle.name, module=wrench_module(vehicle), n=len(pp.yaw_signs),
                                 cg=", ".join(repr(float(x)) for x in (pp.cg[0], pp.cg[1], 0.0)), terms=terms,
                                 network=learned.LEARNED_SOURCE)
 

@@ -139,8 +139,8 @@ MIN_GROUND_HEIGHT = {min_h}  # m, as qr's plant: keeps k T / h^2 finite in a cra
 RESIDUAL = QR_TERMS["residual"]
 REMAINDER = None if QR_TERMS["torque_remainder"] is None else np.asarray(QR_TERMS["torque_remainder"], float)
 REMAINDER_HOVER_SPEED = QR_TERMS["remainder_hover_speed"]
-{network}
 
+{network}
 
 def hover_state(position=(0.0, 0.0, 1.0)):
     """A state at rest, level, every rotor at the hover speed ({hover} rad/s)."""
