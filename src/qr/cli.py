@@ -206,6 +206,9 @@ simulator's units, exact / approximate (with the condition) / impossible (with i
                  OUTDIR/<name>.params (PX4: CA_ROTOR*_PX/PY/KM, SIM_GZ_EC_MIN/MAX; QGroundControl format)
   --to mujoco    OUTDIR/<name>.xml: MJCF body (mass, inertia, CG), thrust and yaw-moment actuators per rotor
                  (ctrl = rotor speed squared, (rad/s)^2)
+a hybrid (qr learn residual): rotorpy also writes <name>_residual.npz (QrMultirotor evaluates the network in
+NumPy); mujoco writes <name>_learned_wrench.py (a control callback applying it) and the .npz; px4-gz lists
+it as impossible with its RMS force and torque over the training flights
 
 examples:
   qr export diag/extended_vehicle.yaml --to rotorpy --out sim_rotorpy

@@ -182,3 +182,32 @@ def test_a_hybrid_with_a_learned_torque_remainder_flies_the_same_in_rotorpy(spee
     row = next(line for line in (tmp_path / "rp" / "mapping.md").read_text().splitlines()
                if line.startswith("| torque_remainder"))
     assert "| exact |" in row
+
+
+def test_a_hybrid_with_a_learned_wrench_flies_the_same_in_rotorpy(speeds, tmp_path):
+    """A hybrid file as ``qr learn residual`` writes it (the brushless extended model, a network on every input
+    group, a learned torque remainder): ``qr export --to rotorpy`` writes the network's weights beside the
+    module, ``QrMultirotor`` evaluates it in NumPy, and RotorPy flies what ``qr evaluate``'s rollout integrates
+    for the same file (its kernel, ``rigid_body_rk4`` on ``true_params`` of the loaded file) to 1e-6 of the span."""
+    from qr.vehicle import load_vehicle as load
+
+    path = S.hybrid_file(load_vehicle(EXTENDED), tmp_path / "hybrid", force=0.02, torque=2e-5, remainder=2e-6)
+    hybrid = load(path)
+    run_export(path, "rotorpy", tmp_path / "rp")
+    written = sorted(p.name for p in (tmp_path / "rp").iterdir() if not p.name.startswith("."))
+    assert written == ["crazyflie21_brushless_params.py", "crazyflie21_brushless_residual.npz", "mapping.md"]
+    mod = S.load_module(tmp_path / "rp" / "crazyflie21_brushless_params.py")
+    assert "torch" not in mod.__dict__ and mod.NETWORK is not None
+    x0 = S.hover_start()
+    a = S.qr_fly(hybrid, speeds, DT, x0)
+    b = S.rotorpy_fly(mod.QrMultirotor(integrator_kwargs=S.TIGHT), speeds * mp.rad_s_per_unit(hybrid), DT, x0)
+    ok, err, span = within(a, b)
+    assert ok, (err, span)
+    # the network moved the flight far beyond the tolerance: the test can fail
+    without = hybrid.with_changes()
+    without.residual = None
+    moved = S.errors(a, S.qr_fly(without, speeds, DT, x0))
+    assert max(moved[k] / span[k] for k in moved) > 1000 * RTOL, moved
+    rows = (tmp_path / "rp" / "mapping.md").read_text().splitlines()
+    row = next(line for line in rows if line.startswith("| residual |"))
+    assert "| exact |" in row and "RMS over the 1 samples" in row

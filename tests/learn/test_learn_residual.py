@@ -254,3 +254,22 @@ def test_a_sweep_is_one_parent_run_with_a_logged_model_per_job(flights, tmp_path
     res = load_vehicle(out / "job1" / "hybrid_vehicle.yaml").residual
     phi = res.input_mean + res.input_scale * np.random.default_rng(0).normal(size=(7, 13))
     np.testing.assert_allclose(np.asarray(model.predict(phi), float), rs.forward(res, phi), rtol=1e-9, atol=1e-12)
+
+
+def test_the_trained_wrench_size_is_recorded_for_the_exports(flights, trained):
+    """``qr export`` states a network's size where a simulator has no place for it (PX4-gz): ``qr learn
+    residual`` records its RMS over the training windows, in training.json and in the vehicle file's block.
+    The truth's hidden term is τ = −C ω on roll and pitch, which the network learned: its RMS torque is the
+    hidden torque's over the training flight (C times the RMS roll-pitch rate there), and it adds no force
+    the flights do not have (its RMS force stays below 1 % of the weight)."""
+    doc, out = trained
+    size = doc["residual_size"]
+    assert json.loads((out / "training.json").read_text())["residual_size"] == size
+    assert yaml.safe_load((out / "hybrid_vehicle.yaml").read_text())["residual"]["size"] == size
+    assert size["flights"] == doc["flights"]["training"] == [str(flights / "a" / "flight.csv")]
+    w = pd.read_parquet(flights / "a" / "truth.parquet")[["wx", "wy"]].to_numpy()  # the true body rate
+    hidden = C * np.sqrt(np.mean(np.sum(w**2, axis=1)))
+    assert size["samples"] > 0.8 * len(w)  # the windows cover the training flight
+    assert size["rms_torque"] == pytest.approx(hidden, rel=0.25), (size, hidden)
+    assert size["rms_force"] < 0.01 * 0.7 * 9.81
+    assert size["rms_torque"] == pytest.approx(np.linalg.norm(size["rms_torque_xyz"]), rel=1e-5)

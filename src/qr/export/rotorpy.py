@@ -27,8 +27,9 @@ derived term by term (docs/export.md):
 - quadratic_drag ``-c_j |v_j| v_j`` → ``c_Dj = c_j``: exact for airspeed along one body axis; RotorPy's
   ``c_Dj |v| v_j`` is larger by ``|v| / |v_j|`` otherwise.
 - the rest (linear drag, per-rotor thrust differences, biases, a constant world force, ground effect,
-  the learned torque remainder) has no RotorPy key: the module's ``QrMultirotor`` adds it to the state
-  derivative.  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
+  a hybrid's learned torque remainder and learned wrench) has no RotorPy key: the module's
+  ``QrMultirotor`` adds it to the state derivative (the network evaluated in NumPy from its weights,
+  ``<name>_residual.npz`` beside the module: no torch, no qr).  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
   exact terms, so it integrates qr's plant; ``Multirotor(quad_params)`` alone gives RotorPy's own physics
   with the mapped coefficients.
 """
@@ -38,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..sim import plant as pl
-from . import mapping as mp
+from . import learned, mapping as mp
 from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
 
 # RotorPy's low-level gains (for its cmd_ctbr / cmd_vel / cmd_acc / cmd_ctatt abstractions): its own
@@ -78,7 +79,11 @@ def display_radius(pp: mp.Plant) -> float:
     return float(d[np.triu_indices(len(r), 1)].min() / 2)
 
 
-def qr_terms(pp: mp.Plant) -> dict:
+def residual_file(vehicle) -> str:
+    return learned.residual_file(file_stem(vehicle))
+
+
+def qr_terms(vehicle, pp: mp.Plant) -> dict:
     """What ``QrMultirotor`` adds: SI units, rotor speeds in rad/s, body frame unless named world."""
     P = pp.P
     k_eta = float(np.mean(pp.k_thrust))
@@ -97,32 +102,26 @@ def qr_terms(pp: mp.Plant) -> dict:
         "marker_offset": list(P[pl.P_MARKER:pl.P_MARKER + 3]),  # m, tracked point from the CG, body
         "remainder_hover_speed": P[pl.P_UHOVER] * pp.unit,  # rad/s
         "torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
+        "residual": learned.residual_spec(vehicle, pp, file_stem(vehicle)),  # the learned body wrench (qr.residual)
     }
 
 
 def _literal(x) -> str:
-    if x is None:
-        return "None"
-    if isinstance(x, dict):
-        return "{" + ", ".join(f"'{k}': {_literal(v)}" for k, v in x.items()) + "}"
-    if isinstance(x, (list, tuple)):
-        if x and isinstance(x[0], (list, tuple)):
-            return "[" + ", ".join(_literal(v) for v in x) + "]"
-        return f"np.array({_vec(x)}, float)"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    return g(x)
+    return learned.literal(x, g)
 
 
 MODULE = '''"""{name} for RotorPy 3: written by `qr export {path} --to rotorpy` (qr {version}).
 
     from {module} import quad_params, QrMultirotor
-    vehicle = QrMultirotor()                    # qr's extended model, exactly (see mapping.md)
+    vehicle = QrMultirotor()                    # qr's model, exactly (see mapping.md)
     vehicle = Multirotor(quad_params)           # RotorPy's own physics with the mapped coefficients
 
 Body frame x forward, y left, z up; rotor speeds in rad/s; SI units.  mapping.md beside this file
-states every conversion and approximation.
+states every conversion and approximation.  A learned wrench (QR_TERMS['residual']) is evaluated here
+in NumPy from its weights beside this file (no torch, no qr needed).
 """
+import os
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from rotorpy.vehicles.multirotor import Multirotor
@@ -137,7 +136,11 @@ QR_TERMS = {{
 }}
 
 MIN_GROUND_HEIGHT = {min_h}  # m, as qr's plant: keeps k T / h^2 finite in a crash
+RESIDUAL = QR_TERMS["residual"]
+REMAINDER = None if QR_TERMS["torque_remainder"] is None else np.asarray(QR_TERMS["torque_remainder"], float)
+REMAINDER_HOVER_SPEED = QR_TERMS["remainder_hover_speed"]
 
+{network}
 
 def hover_state(position=(0.0, 0.0, 1.0)):
     """A state at rest, level, every rotor at the hover speed ({hover} rad/s)."""
@@ -152,12 +155,13 @@ def tracked_point(state):
 
 
 class QrMultirotor(Multirotor):
-    """RotorPy's Multirotor plus the terms of qr's extended model it has no key for.
+    """RotorPy's Multirotor plus the terms of qr's model it has no key for (the learned ones included).
 
     exact_aero=True (default): RotorPy's own aerodynamics are switched off (aero=False) and qr's exact
     drag and flapping terms are added instead, so the vehicle integrates qr's plant.
     exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_flap, c_D: approximate where
-    mapping.md says), plus the terms it has no key for."""
+    mapping.md says), plus the terms it has no key for (a learned wrench then adds to RotorPy's
+    aerodynamics, not to the qr model it was trained on)."""
 
     def __init__(self, params=None, initial_state=None, exact_aero=True, **kwargs):
         self.exact_aero = exact_aero
@@ -165,9 +169,7 @@ class QrMultirotor(Multirotor):
             kwargs["aero"] = False
         super().__init__(quad_params if params is None else params,
                          hover_state() if initial_state is None else initial_state, **kwargs)
-        t = QR_TERMS
-        self._scale = np.asarray(t["thrust_scale"], float)
-        self._W = None if t["torque_remainder"] is None else np.asarray(t["torque_remainder"], float)
+        self._scale = np.asarray(QR_TERMS["thrust_scale"], float)
 
     def qr_wrench(self, s):
         """(world force, body force, body moment) qr's model adds to RotorPy's at the packed state s."""
@@ -188,9 +190,9 @@ class QrMultirotor(Multirotor):
         if t["ground_effect"]:
             h = max(s[2] + R[2] @ t["marker_offset"] - t["ground_z"], MIN_GROUND_HEIGHT)
             F[2] += t["ground_effect"] * (self._scale * thrust).sum() / h**2
-        if self._W is not None:
-            phi = np.concatenate([vb, w, (speeds / t["remainder_hover_speed"])**2 - 1.0, [1.0]])
-            M += self._W @ phi
+        f_learned, m_learned = learned_wrench(vb, w, -R[2], speeds)  # g_b = R^T [0, 0, -1]
+        F += f_learned
+        M += m_learned
         return np.asarray(t["wind_force"], float), F, M
 
     def _s_dot_fn(self, t, s, cmd_rotor_speeds):
@@ -212,114 +214,150 @@ def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> 
             lines.append(f"    'rotor_pos': {{\n{inner},\n    }},")
         else:
             lines.append(f"    '{k}': {_literal(v)},")
-    terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(pp).items())
+    terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(vehicle, pp).items())
     return MODULE.format(name=vehicle.name, path=path, version=version, module=module, params="\n".join(lines),
-                         terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs))
+                         terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs),
+                         network=learned.LEARNED_SOURCE)
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
-    """The mapping of every parameter and named effect onto RotorPy."""
+    """The mapping of every key, parameter and named effect of the vehicle file onto RotorPy."""
     qp = quad_params(pp)
     size = mp.sizes(pp)
     u = vehicle.rotor_speed_unit
+    rx, ry = mp.fx_cg(vehicle)
     out = mp.common_rows(vehicle, pp, {
-        "mass": ("mass", g(qp["mass"]) + " kg"),
-        "inertia": ("Ixx, Iyy, Izz (Ixy = Iyz = Ixz = 0)", ", ".join(g(qp[k]) for k in ("Ixx", "Iyy", "Izz"))),
-        "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²"),
-        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²"),
+        "name": (f"module {file_stem(vehicle)}_params", file_stem(vehicle), ""),
+        "mass": ("mass", g(qp["mass"]) + " kg", mp.fx_mass(vehicle)),
+        "inertia": ("Ixx, Iyy, Izz (Ixy = Iyz = Ixz = 0)", ", ".join(g(qp[k]) for k in ("Ixx", "Iyy", "Izz")),
+                    ", ".join(mp.fx_inertia(vehicle))),
+        "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²", mp.fx_k_thrust(vehicle, mean=True),
+                         "the rotors' mean thrust per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
+                                                                    if mp.has(vehicle, "motor_imbalance") else "")),
+        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle)),
     })
     out += [
         Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions), "rotor_pos",
             ", ".join(f"({g(r[0])}, {g(r[1])}, 0)" for r in pp.rotor_pos), EXACT,
-            "m, relative to the CG (cg_offset subtracted); rotor plane through the CG"),
+            "m, relative to the CG (cg_offset subtracted); rotor plane through the CG",
+            formula=f"({mp.fx_minus('x_i', rx)}, {mp.fx_minus('y_i', ry)}, 0)"),
         Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "rotor_directions",
             ", ".join(f"{s:+g}" for s in pp.yaw_signs), EXACT,
-            "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign"),
+            "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign",
+            formula="s_i"),
         Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "tau_m", g(qp["tau_m"]) + " s", EXACT,
-            "first-order lag in both"),
-        Row("rotor_speed_min / max", f"{g(vehicle.rotor_speed_min)} / {g(vehicle.rotor_speed_max)} {u}",
-            "rotor_speed_min / max", f"{g(qp['rotor_speed_min'])} / {g(qp['rotor_speed_max'])} rad/s", EXACT, "× f"),
+            "first-order lag in both", formula="τ_m"),
+        Row("rotor_speed_min, rotor_speed_max", f"{g(vehicle.rotor_speed_min)}, {g(vehicle.rotor_speed_max)} {u}",
+            "rotor_speed_min, rotor_speed_max", f"{g(qp['rotor_speed_min'])}, {g(qp['rotor_speed_max'])} rad/s", EXACT,
+            "× f", formula="f · u_min, f · u_max"),
+        mp.ground_row(vehicle, "QR_TERMS['ground_z']", g(pp.P[pl.P_GZ]) + " m"),
         Row("(none: no translational lift, no vertical rotor drag in qr)", "-", "k_h, k_z", "0, 0", EXACT,
-            "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over"),
-        Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG"),
+            "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over",
+            formula="0, 0"),
+        Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG",
+            formula="0, 0, 0, 0"),
         Row("(none: qr has no propeller size)", "-", "rotor_radius", g(qp["rotor_radius"]) + " m", EXACT,
             "drawing only in RotorPy: half the smallest distance between two rotor axes"),
         Row("(RotorPy's low-level gains)", "-", "k_w, k_v, kp_att, kd_att",
             ", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att")), EXACT,
-            "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)"),
+            "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)",
+            formula=", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att"))),
     ]
     P = pp.P
-    have = mp.present(vehicle)
+    terms = qr_terms(vehicle, pp)
+    n = len(pp.yaw_signs)
 
     def val(name):
         return mp.effect_value(vehicle, name)
 
-    for name in have:
+    for name in mp.present(vehicle):
         if name in ("mass_error", "inertia_error"):
             out.append(Row(name, val(name), "mass" if name == "mass_error" else "Ixx, Iyy, Izz", "(added)", EXACT,
-                           "added to the vehicle's value"))
+                           "added to the vehicle's value (mass, inertia rows)"))
         elif name == "thrust_gain":
-            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²"))
+            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²",
+                           formula=mp.fx_k_thrust(vehicle, mean=True)))
         elif name == "yaw_torque_gain":
-            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²"))
+            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
+                           formula=mp.fx_k_yaw(vehicle)))
         elif name == "cg_offset":
             out.append(Row(name, val(name), "rotor_pos", "(shifted)", EXACT,
                            "rotor_pos_i = (x_i - rx, y_i - ry, 0): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
         elif name == "motor_imbalance":
+            ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
             out.append(Row(name, val(name), "k_eta (mean) + QR_TERMS['thrust_scale']",
-                           _vec(qr_terms(pp)["thrust_scale"]), EXACT,
+                           _vec(terms["thrust_scale"]), EXACT,
                            "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
-                           "alone has their mean k_eta"))
+                           "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})"))
         elif name == "rotor_drag":
             out.append(Row(name, val(name), "k_d", g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
                            "k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
                            "airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
-                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly"))
+                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly",
+                           formula="rotor_drag.k / f"))
         elif name == "blade_flapping":
             out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
                            f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
                            "[v_iy, -v_ix, 0] grows with the rotor speeds, qr's k [v_y, -v_x, 0] does not: exact at "
                            "equal rotor speeds summing to 4 ω_hover (CG at the rotors' centre); relative error "
-                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly"))
+                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly",
+                           formula="−blade_flapping.k / (n · ω_h)"))
         elif name == "quadratic_drag":
             out.append(Row(name, val(name), "c_Dx, c_Dy, c_Dz", ", ".join(g(qp[k]) for k in ("c_Dx", "c_Dy", "c_Dz")),
                            APPROXIMATE, "c_Dj = c_j: RotorPy's -c_Dj |v| v_j equals qr's -c_j |v_j| v_j for airspeed "
                            "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
-                           "applies qr's term exactly"))
+                           "applies qr's term exactly", formula=", ".join(mp.fx_effect(vehicle, name, ("cx", "cy", "cz")))))
         elif name == "linear_drag":
             out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[pl.P_LIN:pl.P_LIN + 3]) + " N s/m",
                            EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
-                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})"))
+                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})",
+                           formula=", ".join(mp.fx_effect(vehicle, name, ("kx", "ky", "kz")))))
         elif name in ("wind_force", "body_force_bias", "torque_bias"):
-            key = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
+            unit = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
             off = {"wind_force": pl.P_WIND, "body_force_bias": pl.P_BBIAS, "torque_bias": pl.P_TBIAS}[name]
-            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + key, EXACT,
-                           f"no RotorPy key: QrMultirotor adds it ({size[name]})"))
+            params = {"wind_force": ("fx", "fy", "fz"), "body_force_bias": ("bx", "by", "bz"),
+                      "torque_bias": ("tx", "ty", "tz")}[name]
+            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + unit, EXACT,
+                           f"no RotorPy key: QrMultirotor adds it ({size[name]})",
+                           formula=", ".join(mp.fx_effect(vehicle, name, params))))
         elif name == "ground_effect":
-            out.append(Row(name, val(name), "QR_TERMS['ground_effect'], ['ground_z']",
-                           f"{g(P[pl.P_GE])} m², {g(P[pl.P_GZ])} m", EXACT,
-                           f"no RotorPy key: QrMultirotor adds k T / h² along body z ({size[name]})"))
+            out.append(Row(name, val(name), "QR_TERMS['ground_effect']", f"{g(P[pl.P_GE])} m²", EXACT,
+                           f"no RotorPy key: QrMultirotor adds k T / h² along body z, h above ground_z ({size[name]})",
+                           formula="ground_effect.k"))
         elif name == "marker_offset":
             out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[pl.P_MARKER:pl.P_MARKER + 3]) + " m",
                            EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
-                           f"point x + R r ({size[name]}), and the ground effect's height uses it"))
+                           f"point x + R r ({size[name]}), and the ground effect's height uses it",
+                           formula=", ".join(mp.fx_effect(vehicle, name, ("rx", "ry", "rz")))))
         elif name == "actuator_delay":
             out.append(Row(name, val(name), "-", "-", IMPOSSIBLE,
                            f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
                            "first-order motors, delaying cmd_motor_speeds by the same time is equivalent"))
     if P[pl.P_REM_ON]:
-        out.append(Row("torque_remainder", "W (3 x 11)", "QR_TERMS['torque_remainder']", "(3 x 11)", EXACT,
+        out.append(Row("torque_remainder", "W (3 × 11)", "QR_TERMS['torque_remainder']", "the file's W", EXACT,
                        f"a learned map, no RotorPy key: QrMultirotor adds W φ ({size['torque_remainder']})"))
+    if vehicle.residual is not None:
+        out.append(Row("residual", mp.residual_item(vehicle), f"QR_TERMS['residual'], {residual_file(vehicle)}",
+                       "the file's network", EXACT,
+                       "no RotorPy key: QrMultirotor adds the network's body force and torque at the CG at every "
+                       "evaluation of the dynamics (residual_wrench: NumPy, rotor speeds ÷ f into qr's scaling; "
+                       f"weights copied beside the module); its size: {mp.residual_size(vehicle, pp)}"))
     return out
 
 
 def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
-    """Write ``<name>_params.py`` into ``tmp``; return the names written."""
+    """Write ``<name>_params.py`` (and the learned wrench's weights) into ``tmp``; return the names written."""
     from ..atomic import write_text
 
     module = file_stem(vehicle) + "_params"
     write_text(tmp / f"{module}.py", module_text(vehicle, pp, path, version, module))
-    return [f"{module}.py"]
+    return [f"{module}.py", *learned.write_weights(tmp, vehicle, file_stem(vehicle))]
+
+
+def outputs(vehicle) -> list[str]:
+    """The files :func:`write` writes, before writing them (the output folder is checked against them)."""
+    stem = file_stem(vehicle)
+    return [f"{stem}_params.py", *([residual_file(vehicle)] if vehicle.residual is not None else [])]
 
 
 def file_stem(vehicle) -> str:
@@ -331,7 +369,8 @@ def file_stem(vehicle) -> str:
 
 
 INTRO = ["`QrMultirotor` (the module's subclass of RotorPy's `Multirotor`, `exact_aero=True` by default) switches "
-         "RotorPy's own aerodynamics off and adds qr's terms exactly: it integrates qr's plant, and every row "
+         "RotorPy's own aerodynamics off and adds qr's terms exactly, a learned torque remainder and a learned wrench "
+         "(`residual_wrench`, the network in NumPy) included: it integrates qr's plant, and every row "
          "below holds for it except those marked impossible. `Multirotor(quad_params)` alone has RotorPy's own "
          "physics with the mapped keys: the rows marked approximate hold under their condition, the terms under "
          "`QR_TERMS` are missing. f = rad/s per rotor-speed unit."]

@@ -97,6 +97,7 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     hybrid.residual = res
     blocks = rf.validation_blocks(parts, {"vehicle": physical, "hybrid": hybrid}, rcfg.horizon)
     doc = _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh)
+    doc["residual_size"] = training_size(res, parts, rcfg.horizon, physical)
     _write(out, force, physical, res, doc, say)
     if track:
         _track(run_name, parent_id, doc, out, trained.net, [*flights, vehicle])
@@ -142,6 +143,37 @@ def carry_residual(extended_vehicle, hybrid_vehicle, out) -> None:
         save_vehicle(raw, tmp / "hybrid_vehicle.yaml",
                      header=f"{extended_vehicle} (physical part) with the network of {hybrid_vehicle}, carried over")
         load_vehicle(tmp / "hybrid_vehicle.yaml")
+
+
+def training_size(res, parts, H: int, vehicle) -> dict:
+    """The trained wrench's RMS over every sample of the training windows (:func:`qr.residual.rms_size`): the
+    size ``qr export`` states where a simulator has no place for the network.  States are the filter's
+    estimates moved from the tracked point to the CG; rotor speeds those acting there (delay applied)."""
+    from .. import residual as rs
+    from ..frames import quat_to_rot, to_body
+    from ..sim.plant import P_MARKER, cg_from_tracked, true_params
+
+    P = true_params(vehicle, vehicle.effects, residual=False)
+    r = P[P_MARKER:P_MARKER + 3].copy()
+    X, U, flights = [], [], []
+    for pc in parts:
+        if not len(pc.train):
+            continue
+        w = pc.windows
+        edge = np.zeros(len(w.t) + 1, int)  # samples s … s + H of each training window
+        np.add.at(edge, pc.train, 1)
+        np.add.at(edge, np.minimum(pc.train + H + 1, len(w.t)), -1)
+        take = np.cumsum(edge[:-1]) > 0
+        x = w.X0[take].copy()
+        for row in x:
+            cg_from_tracked(row, r)
+        X.append(x)
+        U.append(w.inputs(P)[take])
+        flights += [pc.flight] if pc.flight not in flights else []
+    X = np.concatenate(X) if X else np.zeros((0, 13))
+    U = np.concatenate(U) if U else np.zeros((0, 4))
+    R = quat_to_rot(X[:, 6:10]) if len(X) else np.zeros((0, 3, 3))
+    return rs.rms_size(res, to_body(R, X[:, 3:6]), X[:, 10:13], R[:, 2, :] * -1.0, U, flights)
 
 
 def _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh) -> dict:
@@ -198,7 +230,7 @@ def _write(out: Path, force: bool, physical, res, doc: dict, say) -> None:
     with atomic_dir(out, force=force, command="qr learn residual") as tmp:
         rs.save_weights(res, tmp / "residual.npz")
         raw = physical.to_dict()
-        raw["residual"] = rs.block(res, str((tmp / "residual.npz").resolve()), note)
+        raw["residual"] = rs.block(res, str((tmp / "residual.npz").resolve()), note, doc.get("residual_size"))
         header = (f"Hybrid vehicle from qr learn residual on {', '.join(Path(f).name for f in doc['flights']['training'])}"
                   f": {doc['vehicle']} plus a learned wrench (residual.npz)")
         save_vehicle(raw, tmp / "hybrid_vehicle.yaml", header=header)
