@@ -18,6 +18,7 @@ commands:
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
   evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
+  replay     fly vehicle models under the vehicle's own controller along the flight's setpoints, against the log
   export     a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo, with mapping.md
   filter     Kalman filters / smoother (Hydra overrides)
   learn      train and test residual models, -m for a sweep (Hydra overrides)
@@ -31,6 +32,8 @@ examples:
       --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01,ry=0 --out synth1
   qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
   qr evaluate synth1/flight.csv --vehicle synth1/vehicle.yaml --vehicle diag1/extended_vehicle.yaml --out eval1
+  qr replay ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 --vehicle crazyflie21_brushless \
+      --controller lee --out rep1 replay.trajectory=../shared/data/crazyswarm2-figure8/figure8.csv
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
   qr export diag1/extended_vehicle.yaml --to rotorpy --out sim_rotorpy
@@ -130,6 +133,18 @@ def _parser() -> argparse.ArgumentParser:
                      "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
                      vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
                                                         "filters and is the references' nominal)"))
+    s = _flights_command(sub, "replay", "fly vehicle models in closed loop under the vehicle's own controller "
+                         "along the flight's setpoints, against the log (docs/spec/replay.md)",
+                         "examples:\n  qr replay LOG --vehicle v.yaml --vehicle diag/extended_vehicle.yaml --controller lee "
+                         "--out rep replay.trajectory=figure8.csv replay.timescale=0.8\n"
+                         "  qr replay synth1/flight.csv --vehicle synth1/vehicle.yaml --controller lee --out rep\n"
+                         "writes OUTDIR/replay.json, report.md, figures/; settings: conf/replay/default.yaml, "
+                         "conf/controller/lee.yaml (controller.KR=[...])",
+                         vehicle=dict(action="append", help="vehicle YAML to fly (repeatable; the first one reads "
+                                                            "raw logs)"))
+    s.add_argument("--controller", required=True, metavar="lee|rotorpy_se3|MODULE:CLASS",
+                   help="the controller the vehicle flew: lee (the Crazyflie firmware's), rotorpy_se3, or your class "
+                        "(qr.replay.controller.Controller)")
     s = sub.add_parser("export", help="a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo (docs/spec/export.md)",
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXPORT_EPILOG)
     s.add_argument("vehicle", metavar="VEHICLE.yaml", help="vehicle YAML: nominal, extended or hybrid (as qr "
@@ -186,7 +201,7 @@ def _cmd_hydra_stage(a) -> None:
         sys.argv = argv
 
 
-def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> None:
+def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> argparse.ArgumentParser:
     """A stage command on flights: ``FLIGHT.csv ... [KEY=VALUE ...] --vehicle V --out DIR [--force]``."""
     s = sub.add_parser(name, help=help, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=epilog)
     s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
@@ -195,6 +210,7 @@ def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> N
     s.add_argument("--vehicle", required=True, **vehicle)
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    return s
 
 
 EXPORT_EPILOG = """\
@@ -312,6 +328,13 @@ def _cmd_evaluate(a):
     run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
+def _cmd_replay(a):
+    from .stages.replay import run_replay
+
+    flights, overrides = _flights_and_overrides(a, "replay")
+    run_replay(flights, a.vehicle, a.controller, a.out, overrides, force=a.force)
+
+
 def _cmd_export(a):
     from .stages.export import run_export
 
@@ -340,7 +363,7 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
     if argv and argv[0] in HYDRA_STAGES:
         return argparse.Namespace(command=argv[0], rest=argv[1:])
     args, rest = parser.parse_known_args(argv)
-    if args.command in ("diagnose", "evaluate"):
+    if args.command in ("diagnose", "evaluate", "replay"):
         rest = argv[argv.index(args.command) + 1:]
         args = parser.commands[args.command].parse_intermixed_args(rest, argparse.Namespace(command=args.command))
     elif rest:
@@ -360,7 +383,7 @@ def _main(argv):
     with sigterm_raises():
         try:
             {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
-             "evaluate": _cmd_evaluate, "export": _cmd_export, "learn residual": _cmd_learn_residual,
+             "evaluate": _cmd_evaluate, "replay": _cmd_replay, "export": _cmd_export, "learn residual": _cmd_learn_residual,
              **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)
