@@ -95,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
                               "--rate 100 --seed 1 --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --out DIR\n"
                               "effects: see docs/spec/diagnosis.md (qr.effects.CATALOG)")
     s.add_argument("--vehicle", required=True, help="NOMINAL vehicle YAML (an extended one adds its effects)")
-    s.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
+    s.add_argument("--duration", type=float, help="s (default 60; --controller lee: the trajectory's length + 2.5 s)")
     s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
@@ -111,6 +111,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--yaw-rate", type=float, default=0.0, help="constant yaw spin, rad/s")
     s.add_argument("--v-max", type=float, default=2.5, help="peak horizontal speed, m/s")
     s.add_argument("--tilt-max", type=float, default=25.0, help="peak tilt, degrees")
+    s.add_argument("--controller", default="lqr", choices=["lqr", "lee"],
+                   help="lqr: the thesis's LQR + PD along a random trajectory (default); lee: the Crazyflie firmware's "
+                        "Lee controller along --trajectory (qr replay rebuilds the flight)")
+    s.add_argument("--trajectory", metavar="PIECES.csv",
+                   help="--controller lee: a crazyswarm trajectory CSV (e.g. figure8.csv), flown from (0, 0, 1) m")
+    s.add_argument("--timescale", type=float, default=1.0, help="--controller lee: the trajectory's time scale")
 
     s = sub.add_parser("summary", help="table of ingested flights", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr summary results/ingest/brushless/*.parquet "
@@ -259,6 +265,7 @@ def _check_synth_arguments(a):
     noise = NoiseConfig()
     ranges = {  # option: (allowed values, default)
         "duration": (allowed(gt=0, le=3600), 60.0),  # s; an hour at 100 Hz is 360 000 rows
+        "timescale": (allowed(gt=0, le=100), 1.0),
         "rate": (allowed(gt=0, le=10000), 100.0),  # Hz
         "position_noise": (allowed(ge=0), noise.position_std),
         "attitude_noise": (allowed(ge=0), noise.attitude_std),
@@ -293,9 +300,20 @@ def _cmd_synth(a):
         if val is not None:
             noise = replace(noise, **{field: val})
     traj = TrajectoryConfig(v_max=a.v_max, tilt_max_deg=a.tilt_max, yaw_rate=a.yaw_rate, low_passes=a.low_passes)
-    cfg = SynthConfig(duration=a.duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
-                      trajectory=traj)
-    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle])
+    duration, setpoints = a.duration if a.duration is not None else 60.0, None
+    if a.controller == "lee":
+        from .replay.synth import duration_of, setpoints_record
+
+        if not a.trajectory:
+            raise QrInputError(None, "--controller lee flies a trajectory and none is given",
+                               "add --trajectory PIECES.csv (a crazyswarm trajectory, e.g. figure8.csv)")
+        setpoints = setpoints_record(a.trajectory, a.timescale, (0.0, 0.0, 1.0), vehicle)
+        duration = a.duration if a.duration is not None else duration_of(setpoints)
+    elif a.trajectory:
+        raise QrInputError(a.trajectory, "--trajectory is flown by --controller lee only", "add --controller lee")
+    cfg = SynthConfig(duration=duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
+                      trajectory=traj, controller=a.controller, setpoints=setpoints)
+    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle, a.trajectory])
     names = ", ".join(e["name"] for e in meta["effects"]) or "none"
     print(f"{a.out}: {meta['samples']} samples at {a.rate:g} Hz, hidden effects: {names}")
 

@@ -17,7 +17,7 @@ def setpoints_block(f) -> dict:
         "origin_m": list(a.origin), "yaw0_rad": s.setpoints.yaw0, "controller_mass_kg": s.controller_mass,
         "controller_mass_source": s.mass_source, "source": a.source, "fit_rms": a.fit_rms, "fit_unit": a.fit_unit,
         "window_s": list(s.window), "mixer": s.mixer, "motor_map": mm.to_dict() if mm is not None else None,
-        "vbat_V": s.actuation.vbat if s.mixer == "crazyflie" else None,
+        "vbat_V": s.actuation.vbat if s.mixer == "crazyflie" else None, "sim_rate_hz": s.sim_rate_hz,
     }
 
 

@@ -50,7 +50,8 @@ class Actuation:
 @dataclass(frozen=True)
 class Flown:
     """The simulation at its own steps: time (s), the tracked point's position (m), velocity (m/s), the
-    attitude (body → world), body rate (rad/s), rotor speeds acting (the vehicle's unit), the controller's
+    attitude (body → world), body rate (rad/s), rotor speeds (the motors', as a sensor reads them; the
+    vehicle's unit; with an actuator delay the thrust acts later), the controller's
     collective thrust command (N; NaN for a rotor-speed controller), the PWM duties (or NaN), and the time
     it was stopped as lost (or None).  ``x`` holds the full plant state (CG) for callers that need it."""
 
@@ -70,7 +71,7 @@ class Flown:
 def initial_state(vehicle, p, v, q, w, u, P=None) -> np.ndarray:
     """The plant state (CG) of a tracked-point state: position and velocity of the marker (world), attitude
     (body → world, scalar first), body rate, rotor speeds."""
-    P = true_params(vehicle, residual=False) if P is None else P
+    P = true_params(vehicle, list(vehicle.effects), residual=False) if P is None else P
     x = np.zeros(N_X)
     x[0:3], x[3:6], x[6:10], x[10:13], x[13:17] = p, v, np.asarray(q) / np.linalg.norm(q), w, u
     cg_from_tracked(x, P[P_MARKER:P_MARKER + 3].copy())
@@ -89,13 +90,12 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
     every = max(1, int(round(sim_rate_hz / float(controller.rate_hz))))
     dt = 1.0 / sim_rate_hz
     n = int(math.floor((t1 - t0) / dt + 1e-9))
-    P = true_params(vehicle)
+    P = true_params(vehicle, list(vehicle.effects))
     r = P[P_MARKER:P_MARKER + 3].copy()
     hist = history_buffer(P, dt, x0[13:17])
     u0 = x0[13:17].copy()
     zero = np.zeros(3)
-    lo = float(vehicle.raw.get("rotor_speed_min", 0.0) or 0.0)
-    hi = float(vehicle.raw.get("rotor_speed_max", np.inf) or np.inf)
+    lo, hi = vehicle.rotor_speed_min, vehicle.rotor_speed_max
     ticks = t0 + dt * np.arange(0, n + 1, every)
     ref = setpoints.at(ticks)
     controller.reset(vehicle, mass)
@@ -112,9 +112,8 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
             a, vehicle.rotors.inverse.copy(), lo, hi, near if near is not None else np.zeros((0, 3)), max_error_m,
             hist, u0, r)
         diverged = float(t[m]) if lost else None
-        u_act = _acting(X[:m], P, dt, hist, u0)
-        return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], u_act, thrust[:m], duties[:m],
-                     X[:m], Ucmd[:m], diverged)
+        return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], X[:m, 13:17], thrust[:m],
+                     duties[:m], X[:m], Ucmd[:m], diverged)
     X = np.full((n + 1, N_X), np.nan)
     TP = np.full((n + 1, 6), np.nan)
     Ucmd = np.full((n + 1, 4), np.nan)
@@ -148,9 +147,8 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
         if k < n:
             x = rk4_step(x, u_cmd, P, zero, zero, dt, hist, u0, k)
     m = k + 1 if diverged is None else k
-    u_act = _acting(X[:m], P, dt, hist, u0)
-    return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], u_act, thrust[:m], duties[:m], X[:m],
-                 Ucmd[:m], diverged)
+    return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], X[:m, 13:17], thrust[:m], duties[:m],
+                 X[:m], Ucmd[:m], diverged)
 
 
 # actuation vector of the compiled loop: [kind (0 ideal, 1 crazyflie), map (0 fit, 1 firmware), arm, t2t, vbat,
@@ -253,23 +251,25 @@ def _lost(x, pv, ref, max_error_m) -> bool:
     return ref is not None and math.dist(pv[0:3], ref) > max_error_m
 
 
-def _acting(X, P, dt, hist, u0) -> np.ndarray:
+def _acting(X, P, dt) -> np.ndarray:
     """The rotor speeds acting on the body: the motor state, or with an actuator delay the delayed one."""
     u = X[:, 13:17].copy()
     d = P[P_DELAY] / dt
     if d > 0:
         s = np.arange(len(X)) - d
         for i in range(4):
-            u[:, i] = np.interp(s, np.arange(len(X)), X[:, 13 + i], left=u0[i])
+            u[:, i] = np.interp(s, np.arange(len(X)), X[:, 13 + i], left=X[0, 13 + i])
     return u
 
 
 def accelerations(flown: Flown, vehicle) -> tuple[np.ndarray, np.ndarray]:
     """World acceleration of the CG and body angular acceleration at each step (TRUE physics)."""
-    P = true_params(vehicle)
+    P = true_params(vehicle, list(vehicle.effects))
     zero = np.zeros(3)
+    dt = float(flown.t[1] - flown.t[0]) if len(flown.t) > 1 else 1.0
+    u = _acting(flown.x, P, dt)
     a = np.empty((len(flown.t), 3))
     al = np.empty((len(flown.t), 3))
     for k in range(len(flown.t)):
-        a[k], al[k] = plant_accels(flown.x[k], flown.u[k], P, zero, zero)
+        a[k], al[k] = plant_accels(flown.x[k], u[k], P, zero, zero)
     return a, al

@@ -45,6 +45,7 @@ class Setup:
     window: tuple  # (t0, t1) s, log clock
     initial: tuple  # tracked-point p, v, q, w, u at t0
     thrust_kind: str  # "command" | "rotor"
+    sim_rate_hz: float  # the integration rate (a qr synth flight's own)
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,8 @@ def prepare(log: ReplayLog, vehicle, controller: Controller, settings: ReplaySet
     else:
         initial = (_at(t, p, t0), _at(t, v, t0), _at(t, q, t0), _at(t, w, t0), _at(tl, log.pose[ROTORS].to_numpy(float), t0))
     kind = "command" if mixer == "crazyflie" and log.has_commands else "rotor"
-    return Setup(sp, al, trajectory, mixer, actuation, mass, mass_source, (t0, t1), initial, kind)
+    rate = float(log.synth["setpoints"].get("sim_rate_hz", settings.sim_rate_hz)) if log.synth else settings.sim_rate_hz
+    return Setup(sp, al, trajectory, mixer, actuation, mass, mass_source, (t0, t1), initial, kind, rate)
 
 
 def _align(log, traj, settings, controller, lee, given_mass, t, p, v, R) -> Alignment:
@@ -162,6 +164,9 @@ def _align(log, traj, settings, controller, lee, given_mass, t, p, v, R) -> Alig
 
 
 def _mass(given, al: Alignment, vehicle) -> tuple[float, str]:
+    if al.source == "synth":
+        same = given is None or given == al.mass
+        return float(al.mass if same else given), "recorded by qr synth" if same else "given (controller.mass)"
     if given is not None:
         return float(given), "given (controller.mass)"
     if al.mass is not None:
@@ -195,7 +200,7 @@ def _window(log: ReplayLog, sp: Setpoints, settings: ReplaySettings) -> tuple[fl
     if log.fast is not None:
         start = max(start, float(log.fast["t"].iloc[0]))
     end = min(float(tl[ok][-1]), sp.end_s + settings.hold_s)
-    if end - start < MIN_WINDOW_S or sp.end_s < start:
+    if end - start < MIN_WINDOW_S or sp.end_s < start or sp.offset_s > end:
         raise QrInputError(log.path, f"the log ({start:.2f}–{tl[-1]:.2f} s) does not overlap the trajectory "
                                      f"({sp.offset_s:.2f}–{sp.end_s:.2f} s) for {MIN_WINDOW_S} s",
                            "check replay.trajectory, replay.timescale and replay.offset_s")
@@ -222,7 +227,7 @@ def fly_all(log: ReplayLog, setup: Setup, vehicles, vehicle_files, labels, contr
         x0 = initial_state(veh, *setup.initial)
         say(f"{log.name}: flying {label}")
         flown = fly(veh, controller, setup.setpoints, x0, t0, t1, setup.controller_mass, setup.actuation,
-                    settings.sim_rate_hz, pos, settings.max_error_m)
+                    setup.sim_rate_hz, pos, settings.max_error_m)
         sim = _sampled(flown, t, setup, vehicles[0])
         err = compare(t, t0, logged, sim, settings.part_position_m, settings.part_attitude_deg, flown.diverged_at_s)
         models.append(ModelFlight(label, str(path), err, sim["p"], sim["q"], sim["u"], sim["thrust"]))
@@ -281,5 +286,6 @@ def unknowns(flights, vehicles, settings: ReplaySettings) -> list[str]:
     if any(s.mass_source == "the first vehicle file's mass" for s in setups):
         out.append("the controller's mass parameter: not logged; the first vehicle file's mass is assumed")
     if any(not v.raw.get("rotor_speed_max") for v in vehicles):
-        out.append("a rotor-speed limit: a vehicle file without rotor_speed_max flies without one")
+        out.append("the rotor-speed limit of a vehicle file without rotor_speed_max: √2.5 × its hover speed assumed "
+                   "(qr's default)")
     return out
