@@ -78,15 +78,39 @@ def initial_state(vehicle, p, v, q, w, u, P=None) -> np.ndarray:
     return x
 
 
+class Held:
+    """A setpoint held: the position and yaw of ``setpoints`` at ``t0``, at rest."""
+
+    def __init__(self, setpoints, t0: float):
+        self.ref = setpoints.at(np.array([t0]), order=0)
+
+    def at(self, t, order: int = 4) -> dict:
+        n = len(np.atleast_1d(t))
+        out = {k: np.zeros((n, 3)) for k in ("p", "v", "a", "j", "s")}
+        out["p"][:] = self.ref["p"][0]
+        out.update(yaw=np.full(n, self.ref["yaw"][0]), yaw_rate=np.zeros(n), yaw_acc=np.zeros(n))
+        return out
+
+
 def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t0: float, t1: float, mass: float,
         actuation: Actuation = Actuation(), sim_rate_hz: float = 1000.0, logged_position=None,
-        max_error_m: float = 2.0) -> Flown:
+        max_error_m: float = 2.0, settle_s: float = 0.0) -> Flown:
     """Fly ``vehicle`` from state ``x0`` (plant state, :func:`initial_state`) at time ``t0`` to ``t1`` (s, the
     log's clock) under ``controller`` (reset with ``mass``, kg) along ``setpoints``.
 
     The controller runs every ``round(sim_rate_hz / controller.rate_hz)`` integration steps; its command is
     held.  ``logged_position`` (optional, ``(times, positions (n, 3))``: the logged flight): the simulation
-    stops as lost where it is ``max_error_m`` from it (also when non-finite or upside down)."""
+    stops as lost where it is ``max_error_m`` from it (also when non-finite or upside down).  ``settle_s``: the
+    controller first flies this vehicle for that long from ``x0`` with the setpoint of ``t0`` held, so that its
+    integrators hold what the vehicle needs to hover (as a flight's do when its log starts in the air); the
+    plant then starts again from ``x0``, the controller's state kept."""
+    controller.reset(vehicle, mass)
+    if settle_s > 0:
+        _loop(vehicle, controller, Held(setpoints, t0), x0, t0 - settle_s, t0, actuation, sim_rate_hz, None, np.inf)
+    return _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, logged_position, max_error_m)
+
+
+def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, logged_position, max_error_m) -> Flown:
     every = max(1, int(round(sim_rate_hz / float(controller.rate_hz))))
     dt = 1.0 / sim_rate_hz
     n = int(math.floor((t1 - t0) / dt + 1e-9))
@@ -98,7 +122,6 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
     lo, hi = vehicle.rotor_speed_min, vehicle.rotor_speed_max
     ticks = t0 + dt * np.arange(0, n + 1, every)
     ref = setpoints.at(ticks)
-    controller.reset(vehicle, mass)
     t = t0 + dt * np.arange(n + 1)
     near = None
     if logged_position is not None:
@@ -108,9 +131,9 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
     if type(controller) is LeeController:  # the built-in controller: the whole loop compiled (same numbers)
         a = _actuation_vector(actuation, vehicle)
         X, TP, Ucmd, thrust, duties, m, lost = _fly_lee(
-            x0, P, controller._G, every, dt, n, ref["p"], ref["v"], ref["a"], ref["j"], ref["yaw"], ref["yaw_rate"],
-            a, vehicle.rotors.inverse.copy(), lo, hi, near if near is not None else np.zeros((0, 3)), max_error_m,
-            hist, u0, r)
+            x0, P, controller._G, controller._integ, every, dt, n, ref["p"], ref["v"], ref["a"], ref["j"], ref["yaw"],
+            ref["yaw_rate"], a, vehicle.rotors.inverse.copy(), lo, hi, near if near is not None else np.zeros((0, 3)),
+            max_error_m, hist, u0, r)
         diverged = float(t[m]) if lost else None
         return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], X[:m, 13:17], thrust[:m],
                      duties[:m], X[:m], Ucmd[:m], diverged)
@@ -202,14 +225,14 @@ def _speeds(T, tau, a, Binv):
 
 
 @nb.njit(cache=True)
-def _fly_lee(x0, P, G, every, dt, n, rp, rv, ra, rj, ryaw, ryr, a, Binv, lo, hi, near, max_err, hist, u0, r):
-    """:func:`fly`'s loop with the Lee controller, compiled: (X, TP, Ucmd, thrust, duties, steps, lost)."""
+def _fly_lee(x0, P, G, integ, every, dt, n, rp, rv, ra, rj, ryaw, ryr, a, Binv, lo, hi, near, max_err, hist, u0, r):
+    """:func:`fly`'s loop with the Lee controller, compiled: (X, TP, Ucmd, thrust, duties, steps, lost); the
+    controller's integrators ``integ`` carried on in place."""
     X = np.full((n + 1, N_X), np.nan)
     TP = np.full((n + 1, 6), np.nan)
     Ucmd = np.full((n + 1, 4), np.nan)
     thrust = np.full(n + 1, np.nan)
     duties = np.full((n + 1, 4), np.nan)
-    integ = np.zeros(6)
     zero = np.zeros(3)
     x = x0.copy()
     u_cmd = u0.copy()

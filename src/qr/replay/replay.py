@@ -88,9 +88,9 @@ def run(logs: list[ReplayLog], vehicles: list, vehicle_files: list[str], labels:
     """Replay ``logs`` with each of ``vehicles`` (labelled ``labels``); ``controllers(log) -> Controller``
     gives the controller to fly on a flight (a fresh one; its gains may depend on the flight)."""
     flights = []
-    for log in logs:
+    for i, log in enumerate(logs):
         controller = controllers(log)
-        setup = prepare(log, vehicles[0], controller, settings, say)
+        setup = prepare(log, vehicles[0], controller, settings.for_flight(i, len(logs)), say)
         say(f"{log.name}: {setup.alignment.source} setpoints, start {setup.alignment.offset_s:.3f} s, "
             f"controller mass {setup.controller_mass:.4g} kg, {setup.mixer} mixer")
         flights.append(fly_all(log, setup, vehicles, vehicle_files, labels, controller, settings, say))
@@ -227,7 +227,7 @@ def fly_all(log: ReplayLog, setup: Setup, vehicles, vehicle_files, labels, contr
         x0 = initial_state(veh, *setup.initial)
         say(f"{log.name}: flying {label}")
         flown = fly(veh, controller, setup.setpoints, x0, t0, t1, setup.controller_mass, setup.actuation,
-                    setup.sim_rate_hz, pos, settings.max_error_m)
+                    setup.sim_rate_hz, pos, settings.max_error_m, 0.0 if log.synth else settings.settle_s)
         sim = _sampled(flown, t, setup, vehicles[0])
         err = compare(t, t0, logged, sim, settings.part_position_m, settings.part_attitude_deg, flown.diverged_at_s)
         models.append(ModelFlight(label, str(path), err, sim["p"], sim["q"], sim["u"], sim["thrust"]))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from ..allowed import allowed
@@ -31,11 +31,12 @@ class ReplaySettings:
     """``conf/replay/default.yaml`` says what each is; :meth:`from_dict` fills what is not given from there."""
 
     trajectory: str | None
-    timescale: float
+    timescale: float | tuple  # one for all flights, or one per flight in the order given
     offset_s: float | None
     origin: tuple | None
     yaw0: float
     hold_s: float
+    settle_s: float
     sim_rate_hz: float
     mixer: str
     motor_map: str
@@ -55,12 +56,16 @@ class ReplaySettings:
         base = _defaults()
         d = {**base, **d}
         out = {}
-        rules = {"timescale": allowed(gt=0, le=100), "yaw0": allowed(), "hold_s": allowed(ge=0, le=3600),
+        rules = {"yaw0": allowed(), "hold_s": allowed(ge=0, le=3600), "settle_s": allowed(ge=0, le=60),
                  "sim_rate_hz": allowed(ge=100, le=100000), "part_position_m": allowed(gt=0),
                  "part_attitude_deg": allowed(gt=0, le=180), "max_error_m": allowed(gt=0)}
         for k, v in d.items():
             if k in rules:
                 out[k] = float(rules[k].check(f"replay.{k}", v, base[k], SOURCE))
+            elif k == "timescale":
+                rule = allowed(gt=0, le=100)
+                out[k] = (tuple(float(rule.check("replay.timescale", x, 1.0, SOURCE)) for x in v)
+                          if isinstance(v, (list, tuple)) else float(rule.check("replay.timescale", v, 1.0, SOURCE)))
             elif k == "offset_s":
                 out[k] = None if v is None else float(allowed().check("replay.offset_s", v, None, SOURCE))
             elif k == "origin":
@@ -79,6 +84,15 @@ class ReplaySettings:
         s.crazyflie_mixer()  # checked now, not minutes later
         return s
 
+    def for_flight(self, i: int, n: int) -> ReplaySettings:
+        """The settings of the ``i``-th of ``n`` flights (a time scale per flight picked)."""
+        if not isinstance(self.timescale, tuple):
+            return self
+        if len(self.timescale) != n:
+            raise QrInputError("replay.timescale", f"{len(self.timescale)} time scales for {n} flights",
+                               "give one time scale, or one per flight in the order of the flights")
+        return replace(self, timescale=self.timescale[i])
+
     def crazyflie_mixer(self) -> CrazyflieMixer:
         f = self.firmware
         try:
@@ -96,6 +110,7 @@ class ReplaySettings:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["origin"] = list(self.origin) if self.origin is not None else None
+        d["timescale"] = list(self.timescale) if isinstance(self.timescale, tuple) else self.timescale
         return d
 
 
