@@ -84,7 +84,7 @@ class PythonLee:
 def test_a_users_controller_flies_through_the_generic_loop_as_the_compiled_one(crazyflie):
     """The Lee controller as a user's class (Python loop) and built in (compiled loop), one vehicle with a
     hidden drag, the same numbers."""
-    from qr.replay.controller import controller_named
+    from qr.replay.registry import controller_named
     from qr.replay.fly import fly, initial_state
     from qr.replay.lee import LeeController
 

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from ..errors import QrInputError
 from .lee import GRAVITY
@@ -47,14 +48,31 @@ class Alignment:
     halves_s: tuple | None = None
 
 
+def minimize_scalar(f, bounds, tol: float = 1e-6) -> float:
+    """The minimum of a unimodal ``f`` on ``bounds`` by golden-section search (to ``tol``): the one-dimensional
+    search needs nothing more, and importing scipy.optimize costs a user a third of a second."""
+    a, b = bounds
+    r = (math.sqrt(5.0) - 1.0) / 2.0
+    c, d = b - r * (b - a), a + r * (b - a)
+    fc, fd = f(c), f(d)
+    while b - a > tol:
+        if fc < fd:
+            b, d, fd = d, c, fc
+            c = b - r * (b - a)
+            fc = f(c)
+        else:
+            a, c, fc = c, d, fd
+            d = a + r * (b - a)
+            fd = f(d)
+    return 0.5 * (a + b)
+
+
 def _search(cost, lo: float, hi: float) -> float:
     """The start time minimising ``cost(x, rows)``: a grid on a subsample, then a bounded search on all rows."""
     grid = np.arange(lo, hi + SEARCH_STEP_S / 2, SEARCH_STEP_S)
     values = np.array([cost(x, slice(None, None, SUBSAMPLE)) for x in grid])
     x0 = grid[int(np.argmin(values))]
-    res = minimize_scalar(lambda x: cost(x, slice(None)), bounds=(x0 - SEARCH_STEP_S, x0 + SEARCH_STEP_S), method="bounded",
-                          options={"xatol": 1e-6})
-    return float(res.x)
+    return float(minimize_scalar(lambda x: cost(x, slice(None)), (x0 - SEARCH_STEP_S, x0 + SEARCH_STEP_S)))
 
 
 def _range(t, traj: PiecewisePolynomial, timescale: float) -> tuple[float, float]:
@@ -140,9 +158,7 @@ def _halves(t, cost, offset: float) -> tuple:
     for sl in (slice(0, int(np.searchsorted(t, mid))), slice(int(np.searchsorted(t, mid)), len(t))):
         if sl.stop - sl.start < 20:
             return None
-        res = minimize_scalar(lambda x: cost(x, sl), bounds=(offset - 0.5, offset + 0.5), method="bounded",
-                              options={"xatol": 1e-6})
-        out.append(float(res.x))
+        out.append(float(minimize_scalar(lambda x: cost(x, sl), (offset - 0.5, offset + 0.5))))
     return tuple(out)
 
 

@@ -42,7 +42,7 @@ class Actuation:
         if command.rotor_speeds is not None:
             return np.asarray(command.rotor_speeds, float), None
         if self.mixer is None:
-            return _ideal(vehicle.rotors.inverse, float(command.thrust), np.asarray(command.torque, float)), None
+            return ideal_speeds(vehicle.rotors.inverse, float(command.thrust), np.asarray(command.torque, float)), None
         duties = self.mixer.duties(command.thrust, command.torque, self.vbat)
         return self.motor_map.speeds(duties, self.mixer, vehicle.thrust_coeff, self.vbat), duties
 
@@ -193,7 +193,7 @@ def _actuation_vector(actuation: Actuation, vehicle) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _ideal(Binv, T, tau):
+def ideal_speeds(Binv, T, tau):
     """Rotor speeds of a thrust and torques through the inverse rotor map (negative squares to 0), in index
     order."""
     u = np.empty(4)
@@ -209,7 +209,7 @@ def _speeds(T, tau, a, Binv):
     u = np.empty(4)
     d = np.full(4, np.nan)
     if a[A_KIND] == 0.0:
-        return _ideal(Binv, T, tau), d
+        return ideal_speeds(Binv, T, tau), d
     d = _duties(T, tau, a[A_ARM], a[A_T2T], a[A_D:A_D + 5], a[A_VBAT])
     v = a[A_VBAT]
     for i in range(4):

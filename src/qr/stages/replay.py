@@ -13,15 +13,18 @@ OUTPUTS = ("replay.json", "report.md", "figures/")
 def run_replay(flights, vehicles, controller: str, out, overrides=(), force: bool = False, labels=None,
                track: str | None = None, log=None) -> dict:
     """Replay ``flights`` with each of ``vehicles`` under ``controller``; write ``out``; the document."""
+    from ..errors import QrInputError
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
     from ..replay.logs import read_replay_log
-    from ..stages.evaluate import model_names
     from ..vehicle import load_vehicle
 
     say = log or (lambda msg: print(f"qr replay: {msg}", file=sys.stderr))
-    keys = model_names([str(v) for v in vehicles])
+    names = [Path(str(v)).name for v in vehicles]  # a vehicle's key: its file's name (its path where two clash)
+    keys = [str(v) if names.count(n) > 1 else n for v, n in zip(vehicles, names)]
+    if len(set(keys)) < len(keys):
+        raise QrInputError(keys[0], "the same vehicle file is given twice", "give each --vehicle once")
     vehs = [load_vehicle(v) for v in vehicles]
     from ..replay.settings import compose_replay
 
@@ -29,7 +32,7 @@ def run_replay(flights, vehicles, controller: str, out, overrides=(), force: boo
     logs = [read_replay_log(f, vehs[0]) for f in flights]
     from ..atomic import atomic_dir, write_json, write_text
     from ..replay import document, report
-    from ..replay.controller import controllers_for
+    from ..replay.registry import controllers_for
     from ..replay.replay import run
 
     result = run(logs, vehs, keys, list(labels or keys), controllers_for(controller, cfg["controller"], given), settings, say)
