@@ -122,3 +122,21 @@ def test_a_measured_flight_finds_its_setpoints_from_the_motor_commands(tmp_path,
     m = doc["models"]["crazyflie21_brushless.yaml"]
     assert 0.01 < m["position"]["rmse_m"] < 0.2 and m["thrust"]["kind"] == "command", m
     assert m["diverged_at_s"] is None
+
+
+def test_a_tracked_replay_logs_each_vehicles_errors_as_metrics(tmp_path, capsys, monkeypatch):
+    """One MLflow run (experiment qr-replay) with, per vehicle label, the position, attitude, rotor-speed and
+    thrust RMSE of replay.json, and the report's first sentence as its description."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.stages.replay import run_replay
+
+    s = synth(tmp_path, "s", capsys, "linear_drag:kx=0.02,ky=0.02,kz=0.01", timescale=0.5)
+    doc = run_replay([s / "flight.csv"], [true_vehicle(s, tmp_path), s / "vehicle.yaml"], "lee", tmp_path / "r",
+                     labels=["true", "nominal"], track="replay:test", log=lambda m: None)
+    run = tracking._client().search_runs([tracking.experiment_id("replay")])[0]
+    m = run.data.metrics
+    assert m["nominal.position_rmse_m"] == pytest.approx(doc["models"]["vehicle.yaml"]["position"]["rmse_m"])
+    assert m["true.position_rmse_m"] < 1e-8 and {"nominal.attitude_rmse_deg", "nominal.rotor_rmse_percent",
+                                                   "nominal.thrust_rmse_N"} <= set(m)
+    assert run.data.tags["mlflow.note.content"].startswith("Flown in closed loop")
