@@ -22,7 +22,10 @@ from dataclasses import dataclass
 
 import math
 
+import numba as nb
 import numpy as np
+
+from ..linalg_compiled import cholesky_solve
 
 from ..errors import QrInputError
 from .lee import GRAVITY
@@ -46,6 +49,31 @@ class Alignment:
     fit_rms: float | None = None
     fit_unit: str | None = None
     halves_s: tuple | None = None
+
+
+@nb.njit(cache=True)
+def _normal(A, y):
+    n, k = A.shape
+    N = np.zeros((k, k))
+    b = np.zeros((k, 1))
+    for r in range(n):
+        for i in range(k):
+            b[i, 0] += A[r, i] * y[r]
+            for j in range(k):
+                N[i, j] += A[r, i] * A[r, j]
+    return N, b
+
+
+def lstsq(A, y) -> np.ndarray:
+    """Least squares by the normal equations, summed in a fixed order and solved by Cholesky (compiled): the
+    same last bits under any BLAS kernel (LAPACK's ``lstsq`` is not); the columns here are a handful of
+    well-scaled regressors."""
+    A = np.ascontiguousarray(A, float)
+    N, b = _normal(A, np.ascontiguousarray(y, float))
+    x = np.empty_like(b)
+    if not cholesky_solve(N, b, np.zeros_like(N), x):
+        return np.linalg.lstsq(A, y, rcond=None)[0]  # rank-deficient: LAPACK's minimum-norm answer
+    return x[:, 0]
 
 
 def minimize_scalar(f, bounds, tol: float = 1e-6) -> float:
@@ -101,10 +129,10 @@ def _thrust_fit(t, p, v, R, thrust, traj, timescale, offset, gains, mass, origin
         y = thrust - mass * A[:, 0]
         if A.shape[1] == 1:
             return float(np.mean(y ** 2)), mass, tuple(origin)
-        c = np.linalg.lstsq(mass * A[:, 1:], y, rcond=None)[0]
+        c = lstsq(mass * A[:, 1:], y)
         r = y - mass * A[:, 1:] @ c
         return float(np.mean(r ** 2)), mass, tuple(float(x) for x in c)
-    c = np.linalg.lstsq(A, thrust, rcond=None)[0]
+    c = lstsq(A, thrust)
     r = thrust - A @ c
     m = float(c[0])
     o = tuple(origin) if origin is not None else tuple(float(x) / m for x in c[1:])

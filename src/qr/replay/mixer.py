@@ -139,6 +139,8 @@ class MotorMap:
 def fit_motor_map(t, duties, speeds, tau_s: float) -> MotorMap:
     """``u = a + b pwm`` per rotor, least squares of the logged rotor speeds on the duties passed through the
     first-order motor response of time constant ``tau_s`` (the same response the simulation applies)."""
+    from .alignment import lstsq
+
     t = np.asarray(t, float)
     duties = np.asarray(duties, float)
     speeds = np.asarray(speeds, float)
@@ -152,7 +154,7 @@ def fit_motor_map(t, duties, speeds, tau_s: float) -> MotorMap:
     for i in range(4):
         ok = np.isfinite(lagged[:, i]) & np.isfinite(speeds[:, i])
         A = np.stack([np.ones(ok.sum()), lagged[ok, i]], axis=1)
-        c = np.linalg.lstsq(A, speeds[ok, i], rcond=None)[0]
+        c = lstsq(A, speeds[ok, i])
         a.append(float(c[0]))
         b.append(float(c[1]))
         res.append(speeds[ok, i] - A @ c)
