@@ -14,14 +14,10 @@ REPLAY_SETS = [s for s in SETS if (SETS[s].get("controller") or {}).get("name")
                and replayed_flights(SETS[s], TRAJECTORY_FILES)]
 
 
-def replay_logs(wildcards):
-    return [raw_log(SimpleNamespace(set=wildcards.set, flight=f))
-            for f in replayed_flights(SETS[wildcards.set], TRAJECTORY_FILES)]
-
-
 rule replay:
     input:
-        logs=replay_logs,
+        logs=lambda wc: [raw_log(SimpleNamespace(set=wc.set, flight=f))
+                         for f in replayed_flights(SETS[wc.set], TRAJECTORY_FILES)],
         evaluation=lambda wc: rules.evaluate_held_out.output.evaluation.format(set=wc.set),
         residual=lambda wc: rules.learn_residual.output[0].format(set=wc.set),
         carried=lambda wc: f"results/learn/carried/{wc.set}" if wc.set == RESIDUAL_CARRY else [],
