@@ -147,7 +147,9 @@ def _parser() -> argparse.ArgumentParser:
                          "writes OUTDIR/replay.json, report.md, figures/; settings: conf/replay/default.yaml, "
                          "conf/controller/lee.yaml (controller.KR=[...])",
                          vehicle=dict(action="append", help="vehicle YAML to fly (repeatable; the first one reads "
-                                                            "raw logs)"))
+                                                            "raw logs)"),
+                         what="raw log(s) (Crazyflie uSD: their motor commands give the setpoints' start) or canonical "
+                              "flight(s)")
     s.add_argument("--controller", required=True, metavar="lee|rotorpy_se3|MODULE:CLASS",
                    help="the controller the vehicle flew: lee (the Crazyflie firmware's), rotorpy_se3, or your class "
                         "(qr.replay.controller.Controller)")
@@ -207,11 +209,12 @@ def _cmd_hydra_stage(a) -> None:
         sys.argv = argv
 
 
-def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> argparse.ArgumentParser:
+def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict,
+                     what: str = "canonical flight(s)") -> argparse.ArgumentParser:
     """A stage command on flights: ``FLIGHT.csv ... [KEY=VALUE ...] --vehicle V --out DIR [--force]``."""
     s = sub.add_parser(name, help=help, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=epilog)
     s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
-                   help=f"canonical flight(s), and optional Hydra overrides (conf/{name}/default.yaml), "
+                   help=f"{what}, and optional Hydra overrides (conf/{name}/default.yaml), "
                         "before or after the options")
     s.add_argument("--vehicle", required=True, **vehicle)
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
