@@ -14,7 +14,7 @@ import pytest
 
 from conftest import ROOT
 
-STAGES = ("ingest", "filter", "learn", "diagnose", "simulate", "evaluate")
+STAGES = ("ingest", "filter", "learn", "diagnose", "simulate", "evaluate", "replay")
 SRC = ROOT / "src" / "qr"
 
 

@@ -47,6 +47,8 @@ class SynthConfig:
     noise_free: bool = False
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     gains: Gains = field(default_factory=Gains)
+    controller: str = "lqr"  # "lee": the Crazyflie firmware's Lee controller along `setpoints` (qr.replay.synth)
+    setpoints: dict | None = None  # controller "lee": qr.replay.synth.setpoints_record(...)
 
 
 TRUTH_COLUMNS = (["t", "px", "py", "pz", "vx", "vy", "vz", "ax", "ay", "az", "qw", "qx", "qy", "qz",
@@ -103,6 +105,10 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
                    traj: RandomTrajectory | None = None) -> pd.DataFrame:
     """Noise-free true states of the tracked point at the log stamps."""
     effects = validate_effect_list(effects)
+    if cfg.controller == "lee":
+        from ..replay.synth import lee_truth
+
+        return lee_truth(vehicle, effects, cfg.setpoints, cfg.duration, cfg.rate, sim_rate(cfg), TRUTH_COLUMNS)
     rng = np.random.default_rng(cfg.seed)
     traj = traj or random_trajectory(rng, cfg.duration, cfg.trajectory)
     log_every = max(1, math.ceil(max(cfg.sim_rate, MIN_SIM_RATE) / cfg.rate))
@@ -124,6 +130,11 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
         raise QrInputError("synthetic flight", f"the controller lost the vehicle: {lost}",
                            "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
     return truth
+
+
+def sim_rate(cfg: SynthConfig) -> float:
+    """The integration rate: ``sim_rate`` raised to a multiple of the log rate (and at least MIN_SIM_RATE)."""
+    return cfg.rate * max(1, math.ceil(max(cfg.sim_rate, MIN_SIM_RATE) / cfg.rate))
 
 
 # A flight the controller no longer tracks is not a flight a pilot would log: its chaos also makes its
@@ -224,7 +235,10 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
             "noise": asdict(cfg.noise),
             "trajectory": asdict(cfg.trajectory),
             "samples": len(flight),
+            "controller": cfg.controller,
         }
+        if cfg.controller == "lee":  # what qr replay rebuilds the flight from
+            meta["setpoints"] = {**cfg.setpoints, "sim_rate_hz": sim_rate(cfg)}
         write_flight(flight, tmp / "flight.csv")
         save_vehicle(vehicle, tmp / "vehicle.yaml",
                      header="NOMINAL vehicle of a qr synth flight: the hidden effects are in truth.json")
