@@ -49,7 +49,8 @@ CONFIGS = {  # name -> RotorPy aerodynamic keys left on (the others 0); None: ae
     "translational lift k_h": ("k_h",),
     "all on": AERO_KEYS,
 }
-CHECKED = {"rotor_drag": ("k",), "linear_drag": ("kz",), "blade_flapping": ("k",), "quadratic_drag": ("cx", "cy", "cz")}
+CHECKED = {"rotor_drag": ("k",), "rotor_drag_moment": ("k",), "translational_lift": ("k",), "linear_drag": ("kz",),
+           "blade_flapping": ("k",), "quadratic_drag": ("cx", "cy", "cz")}
 
 
 def params(keys):

@@ -42,8 +42,10 @@ ONE_EACH = {  # each catalog effect alone, at sizes like the brushless set's (RE
     "inertia_error": {"dJxx": 6.4e-6, "dJyy": 0.0, "dJzz": 0.0},
     "marker_offset": {"rx": 0.003, "ry": -0.001, "rz": 0.018},
     "blade_flapping": {"k": 6.9e-4},
+    "rotor_drag_moment": {"k": 2e-7},
+    "translational_lift": {"k": 5e-4},
 }
-NATIVE_EXACT = ("thrust_gain", "mass_error", "cg_offset", "yaw_torque_gain", "inertia_error")
+NATIVE_EXACT = ("thrust_gain", "mass_error", "cg_offset", "yaw_torque_gain", "inertia_error", "translational_lift")
 
 
 @pytest.fixture(scope="module")
@@ -182,3 +184,41 @@ def test_a_hybrid_with_a_learned_torque_remainder_flies_the_same_in_rotorpy(spee
     row = next(line for line in (tmp_path / "rp" / "mapping.md").read_text().splitlines()
                if line.startswith("| torque_remainder"))
     assert "| exact |" in row
+
+
+def test_rotorpys_rotor_drag_and_lift_at_the_hubs_are_qrs_terms(tmp_path):
+    """rotor_drag and rotor_drag_moment named with one k, and translational_lift, hubs 1 cm above the CG:
+    RotorPy's H-force and lift at the hubs (rotor_drag_matrix = diag(k/f, k/f, 0), k_h = k) give qr's
+    catalog moments exactly, at any rotor speeds and body rates; its force is qr's plus the hub part
+    -k_d Σ ω_i (ω × r_i)_xy mapping.md states (zero at equal speeds without roll/pitch rate)."""
+    from qr.effects import CATALOG, Signals
+
+    k, kl = 2e-7, 5e-4
+    vehicle = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml").with_changes(hub_z=0.01, effects=[
+        {"name": "rotor_drag", "parameters": {"k": k}}, {"name": "rotor_drag_moment", "parameters": {"k": k}},
+        {"name": "translational_lift", "parameters": {"k": kl}}])
+    mod = export(vehicle, tmp_path)
+    f = mp.rad_s_per_unit(vehicle)
+    assert mod.quad_params["k_d"] == pytest.approx(k / f, rel=1e-9) and mod.quad_params["k_h"] == kl
+    rows = {r.split(" | ")[0].strip("| "): r for r in (tmp_path / "rp" / "mapping.md").read_text().splitlines()}
+    assert "| exact |" in rows["rotor_drag_moment"] and "| exact |" in rows["translational_lift"]
+    r = mp.plant_of(vehicle).rotor_pos
+    rng = np.random.default_rng(2)
+    hover = mp.plant_of(vehicle).hover
+    for _ in range(5):
+        v, w = rng.normal(0, 2, 3), rng.normal(0, 2, 3)
+        omega = hover * rng.uniform(0.8, 1.2, 4)  # rad/s
+        F, M = _aero(mod, omega, v, w)
+        u = omega / f  # the vehicle's unit
+        s = Signals(R=np.eye(3)[None], v_b=v[None], a_b=np.zeros((1, 3)), omega=w[None], alpha=np.zeros((1, 3)),
+                    u=u[None], u_dot=np.zeros((1, 4)), p=np.array([[0.0, 0.0, 1.0]]))
+        qr = sum(CATALOG[e["name"]].term(e["parameters"], s, vehicle)[0] for e in vehicle.effects)
+        np.testing.assert_allclose(M, qr[3:], rtol=1e-9, atol=1e-16)
+        hub_part = -k / f * (omega[:, None] * np.cross(w, r)).sum(axis=0) * [1, 1, 0]
+        np.testing.assert_allclose(F, qr[:3] + hub_part, rtol=1e-9, atol=1e-16)
+    # mapping.md's condition: equal rotor speeds, yaw rate only: RotorPy's force is qr's
+    F, _ = _aero(mod, np.full(4, hover), v, np.array([0.0, 0.0, w[2]]))
+    s = Signals(R=np.eye(3)[None], v_b=v[None], a_b=np.zeros((1, 3)), omega=np.array([[0.0, 0.0, w[2]]]),
+                alpha=np.zeros((1, 3)), u=np.full((1, 4), hover / f), u_dot=np.zeros((1, 4)), p=np.array([[0.0, 0.0, 1.0]]))
+    qr = sum(CATALOG[e["name"]].term(e["parameters"], s, vehicle)[0] for e in vehicle.effects)
+    np.testing.assert_allclose(F, qr[:3], rtol=1e-9, atol=1e-16)

@@ -14,7 +14,11 @@ coefficient is identified (:func:`evidence`, :func:`coefficient_checks`):
   across flights where there are several) makes the same statement on each;
 - consistent with the log's own evidence: a C_T or mass factor must agree with the hover thrust the
   rotor map gives against the weight (``HOVER_TOL``); C_Q is fixed only relative to J_zz
-  (J_z α_z = C_Q-torque): its statement is about the ratio.
+  (J_z α_z = C_Q-torque): its statement is about the ratio;
+- not a rate damping: a C_Q error scales the rotors' own yaw torque whatever the yaw rate, a yaw torque
+  that grows with the yaw rate is the rotor drag's moment at the hubs (the spec).  Where
+  ``rotor_drag_moment`` is a candidate the set did not name, the C_Q factor is fitted again beside it
+  (``DAMPING``): a factor that is no longer gross was a damping, never a C_Q statement.
 
 What fails is listed as unresolved, with why: never a statement.
 """
@@ -29,6 +33,7 @@ from ..effects import CATALOG
 from ..identification.normal_equations import Columns, fit, inflation
 
 GROSS = 1.5  # a factor this far from 1, either way, is a wrong number in the file, not a small correction
+DAMPING = "rotor_drag_moment"  # the yaw-rate damping a C_Q factor is checked against
 VIF_MAX = 10.0  # variance inflation above which a parameter is a combination with another, not itself
 HOVER_TOL = 1.25  # a C_T or mass factor may disagree with the log's hover balance by this factor at most
 
@@ -40,6 +45,9 @@ class Evidence:
     inflation: list[float]  # per parameter: variance inflation in the named set's joint fit
     partner: list[str | None]  # per parameter: the effect it is most collinear with
     halves: tuple[list[float], list[float]]  # the parameters (file units) fitted on each half of the blocks
+    # the parameters (file units) fitted with a yaw-rate damping (DAMPING) beside the named set, where it is a
+    # candidate the set did not name (else None)
+    with_damping: list[float] | None = None
 
 
 def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
@@ -56,6 +64,9 @@ def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
     owner = [e for e in own for _ in CATALOG[e].params]
     B = stats.blocks
     halves = [fit(stats, own, np.arange(B // 2)), fit(stats, own, np.arange(B // 2, B))] if B >= 4 else None
+    damped = None
+    if DAMPING in stats.cols.effects and DAMPING not in named:
+        damped = fit(stats, own + [DAMPING])[:cols.size]
     out = {}
     for e in own:
         sl = cols.slices[e]
@@ -65,7 +76,8 @@ def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
             partner.append(owner[max(others, key=lambda k: abs(corr[j, k]))] if others else None)
         neutral = np.asarray(CATALOG[e].neutral, float)
         out[e] = Evidence([float(v) for v in vif[sl]], partner,
-                          tuple((h[sl] + neutral).tolist() for h in halves) if halves else ([], []))
+                          tuple((h[sl] + neutral).tolist() for h in halves) if halves else ([], []),
+                          None if damped is None else (damped[sl] + neutral).tolist())
     return out
 
 
@@ -106,6 +118,11 @@ def _why_not(name, key, sym, factor, param, ev: Evidence | None, vehicle, hover_
         if not all(_gross(f) == _gross(factor) for f in half):
             return (f"the first and the second half of the training data give x{half[0]:.3g} and x{half[1]:.3g}: "
                     f"not the same statement")
+    if key == "torque_coeff" and ev.with_damping is not None:
+        damped = ev.with_damping[list(CATALOG[name].params).index(param)]
+        if _gross(damped) != _gross(factor):
+            return (f"fitted beside a yaw-rate damping ({DAMPING}: the rotor drag's moment at the hubs) it is "
+                    f"x{damped:.3g}: the yaw torque grows with the yaw rate, which a C_Q error does not")
     if key in ("thrust_coeff", "mass") and hover_ratio is not None and np.isfinite(hover_ratio):
         # hover: C_T-thrust x gain = (m + dm) g, so the file's rotor map gives m g x (mass factor / gain)
         predicted = 1 / factor if key == "thrust_coeff" else factor

@@ -58,12 +58,14 @@ class Plant:
     hover: float  # rad/s, rotor speed of four equal rotors carrying m g with the mean k_thrust
     P: np.ndarray  # the TRUE plant's parameter vector (qr.sim.plant), for the remaining terms
     unit: float  # rad/s per vehicle rotor-speed unit
+    hub_z: float = 0.0  # m, the rotor hubs' height above the CG (the vehicle file's hub_z)
 
     @property
     def rotor_pos(self) -> np.ndarray:
-        """(4, 3) m: rotor hubs relative to the CG (rotor plane through the CG)."""
+        """(4, 3) m: rotor hubs relative to the CG (their height: hub_z)."""
         r = np.zeros((len(self.yaw_signs), 3))
         r[:, :2] = self.rotor_xy - self.cg
+        r[:, 2] = self.hub_z
         return r
 
     @property
@@ -87,7 +89,7 @@ def plant_of(vehicle) -> Plant:
                  yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[pl.P_CQGAIN] / f**2,
                  cg=P[pl.P_CG:pl.P_CG + 2].copy(), tau_m=float(P[pl.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
-                 P=P, unit=f)
+                 P=P, unit=f, hub_z=vehicle.hub_z)
 
 
 def g(x: float) -> str:
@@ -138,6 +140,9 @@ def sizes(pp: Plant) -> dict[str, str]:
         "cg_offset": torque(float(np.linalg.norm(P[pl.P_CG:pl.P_CG + 2])) * W),
         "torque_bias": torque(float(np.linalg.norm(P[pl.P_TBIAS:pl.P_TBIAS + 3]))),
         "blade_flapping": f"{torque(abs(P[pl.P_FLAP]) * V_REF)} at {V_REF:g} m/s",
+        "rotor_drag_moment": f"{torque(P[pl.P_RDM] * pp.hover / pp.unit * float(np.sum(pp.rotor_pos[:, :2] ** 2)))} "
+                             "at 1 rad/s of yaw rate and hover rotor speed",
+        "translational_lift": f"{force(4 * P[pl.P_TLIFT] * V_REF**2)} at {V_REF:g} m/s",
         "actuator_delay": f"{1000 * P[pl.P_DELAY]:.3g} ms between the rotor speed and its wrench",
         "marker_offset": f"{1000 * float(np.linalg.norm(P[pl.P_MARKER:pl.P_MARKER + 3])):.3g} mm "
                          "between the tracked point and the CG",
