@@ -352,6 +352,26 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
            meaning="each rotor's thrust grows with the square of its edgewise airspeed (translational lift)"),
 ]}
 
+def _rate_damping(s, v):
+    D = _zeros(s, 3)
+    for j in range(3):
+        D[:, 3 + j, j] = -s.omega[:, j]
+    return D
+
+
+# Terms outside the catalog that checks fit beside a named effect, never named themselves
+# (qr.diagnose.coefficients: an inertia factor that a rate damping takes is no statement about J)
+CHECK_TERMS: dict[str, Effect] = {e.name: e for e in [
+    Effect("rate_damping", ("cx", "cy", "cz"), ("N m s",) * 3, (0, 0, 0), _rate_damping, TQ,
+           doc="torque -diag(c) ω", meaning="a torque opposing the body rate (not a catalog effect: checks only)"),
+]}
+
+
+def lookup(name: str) -> Effect:
+    """A catalog effect, or a check term (``CHECK_TERMS``)."""
+    return CATALOG[name] if name in CATALOG else CHECK_TERMS[name]
+
+
 # Effects that are the force and the moment of one physical term: named together they share one parameter
 # vector (the spec: rotor_drag and rotor_drag_moment are one rotor drag's force and moment).
 TIED = (("rotor_drag", "rotor_drag_moment"),)
@@ -398,7 +418,8 @@ def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
         # more thrust in edgewise flow; four rotors' 4 k v² held to the quadratic drag's 20 m v²
         "translational_lift": ([0], [5 * m]),
     }
-    lo, hi = table.get(name, ([-inf] * len(CATALOG[name].params), [inf] * len(CATALOG[name].params)))
+    n = len(lookup(name).params)
+    lo, hi = table.get(name, ([-inf] * n, [inf] * n))
     return np.array(lo, float), np.array(hi, float)
 
 

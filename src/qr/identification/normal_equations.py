@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..effects import CATALOG, TIED, Signals
+from ..effects import TIED, Signals, lookup
 from .box_qp import box_qp, box_qp_many, scaled_solve_many
 
 
@@ -33,7 +33,7 @@ class Columns:
     def of(cls, effects, force_only=()):
         slices, j = {}, 0
         for e in effects:
-            k = len(CATALOG[e].params)
+            k = len(lookup(e).params)
             slices[e] = slice(j, j + k)
             j += k
         return cls(list(effects), slices, frozenset(force_only) & set(effects))
@@ -81,7 +81,7 @@ def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
         return np.zeros((len(s), 6, 0))
     parts = []
     for e in cols.effects:
-        X = CATALOG[e].design(s, vehicle)
+        X = lookup(e).design(s, vehicle)
         if e in cols.force_only:
             X = X.copy()
             X[:, 3:, :] = 0.0
