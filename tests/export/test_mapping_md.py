@@ -37,7 +37,7 @@ EXAMPLE = {
     "cg_offset": {"rx": -0.00041, "ry": 0.00012}, "torque_bias": {"tx": 1.3e-5, "ty": -2.2e-5, "tz": 1.1e-6},
     "yaw_torque_gain": {"gain": 0.23}, "inertia_error": {"dJxx": 5.9e-6, "dJyy": 1.2e-6, "dJzz": -2.1e-6},
     "marker_offset": {"rx": 0.0027, "ry": -0.0013, "rz": 0.017}, "blade_flapping": {"k": 6.1e-4},
-    "actuator_delay": {"delay_s": 0.012},
+    "actuator_delay": {"delay_s": 0.012}, "rotor_drag_moment": {"k": 2.3e-7}, "translational_lift": {"k": 4.1e-4},
 }
 # the rad/s file carries a key qr does not know, on purpose (its row is checked): its warning is expected
 pytestmark = pytest.mark.filterwarnings(r"ignore:.*unknown key\(s\) \['battery_cells'\]")
@@ -65,7 +65,7 @@ def vehicle_files(tmp_path_factory):
     save_vehicle(hb, tmp / "hummingbird_rad_s.yaml")
     files["hummingbird_rad_s"] = tmp / "hummingbird_rad_s.yaml"
     brushless = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml")
-    save_vehicle(brushless.with_changes(effects=every_effect(), ground_z=0.02), tmp / "every_effect.yaml")
+    save_vehicle(brushless.with_changes(effects=every_effect(), ground_z=0.02, hub_z=0.011), tmp / "every_effect.yaml")
     files["every_effect"] = tmp / "every_effect.yaml"
     # refined: what diagnose.refine=rollout writes, the named effects then the vehicle's coefficients refined
     refined = load_vehicle(EXTENDED).effects + [{"name": n, "parameters": EXAMPLE[n]}
@@ -157,7 +157,8 @@ def symbols(path) -> dict:
     f = 2 * math.pi / 60 if raw["rotor_speed_unit"] == "rpm" else 1.0
     sym = {"f": f, "g": 9.81, "n": 4, "m": float(raw["mass"]), "C_T": float(raw["thrust_coeff"]),
            "C_Q": float(raw["torque_coeff"]), "τ_m": v.motor_time_constant, "u_min": v.rotor_speed_min,
-           "u_max": v.rotor_speed_max, "ground_z": v.ground_z}
+           "u_max": v.rotor_speed_max, "ground_z": v.ground_z,
+           "hub_z": float(raw.get("hub_z", 0.0))}
     sym.update({f"J_{a}": float(j) for a, j in zip(("xx", "yy", "zz"), raw["inertia"])})
     for i, ((x, y), s) in enumerate(zip(v.rotors.positions, v.rotors.yaw_signs), 1):
         sym[f"x_{i}"], sym[f"y_{i}"], sym[f"s_{i}"], sym[f"d_{i}"] = float(x), float(y), float(s), 0.0

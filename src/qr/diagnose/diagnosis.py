@@ -26,10 +26,12 @@ from ..config import to_dict
 from ..estimation.crossfit import SegmentEstimate
 from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
+from ..identification.normal_equations import Columns
 from ..rollout import EvaluateConfig
 from ..vehicle import Vehicle
 from .accelerometer import accelerometer_check
-from .coefficients import coefficient_checks, evidence
+from .coefficients import CHECKED_AGAINST, coefficient_checks, evidence
+from .core import block_stats
 from .fit import Fit, NamedEffect, identify
 from .flights import Flights
 from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
@@ -184,8 +186,14 @@ def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[
     """Statements about the vehicle file's own numbers (:func:`coefficient_checks`), from the parameters
     as diagnosis.json states them and the log's hover balance."""
     hover = hover_ratio(pd.concat(flights.measured, ignore_index=True), vehicle)
+    stats = final.stats
+    own = [e for e in final.named if e not in final.fixed]
+    checks = [c for e, c in CHECKED_AGAINST.items() if e in own and c not in final.named]
+    if any(c not in stats.cols.effects for c in checks):
+        # a C_Q or inertia factor is checked against a rate damping, a candidate or not
+        stats = block_stats(final.labels.cross, vehicle, Columns.of(own + checks, final.force_only))
     return coefficient_checks([e.stated() for e in final.effects], vehicle, vehicle_file,
-                              evidence(final.stats, final.named, final.fixed), hover)
+                              evidence(stats, final.named, final.fixed), hover)
 
 
 def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,

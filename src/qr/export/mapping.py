@@ -61,12 +61,14 @@ class Plant:
     hover: float  # rad/s, rotor speed of four equal rotors carrying m g with the mean k_thrust
     P: np.ndarray  # the TRUE plant's parameter vector (qr.sim.plant), for the remaining terms
     unit: float  # rad/s per vehicle rotor-speed unit
+    hub_z: float = 0.0  # m, the rotor hubs' height above the CG (the vehicle file's hub_z)
 
     @property
     def rotor_pos(self) -> np.ndarray:
-        """(4, 3) m: rotor hubs relative to the CG (rotor plane through the CG)."""
+        """(4, 3) m: rotor hubs relative to the CG (their height: hub_z)."""
         r = np.zeros((len(self.yaw_signs), 3))
         r[:, :2] = self.rotor_xy - self.cg
+        r[:, 2] = self.hub_z
         return r
 
     @property
@@ -90,7 +92,7 @@ def plant_of(vehicle) -> Plant:
                  yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[pl.P_CQGAIN] / f**2,
                  cg=P[pl.P_CG:pl.P_CG + 2].copy(), tau_m=float(P[pl.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
-                 P=P, unit=f)
+                 P=P, unit=f, hub_z=vehicle.hub_z)
 
 
 def g(x: float) -> str:
@@ -170,7 +172,7 @@ def symbols(vehicle, pp: Plant) -> str:
     mass = fx_mass(vehicle) if not has(vehicle, "mass_error") else f"({fx_mass(vehicle)})"
     return ("Formulas (column *formula*; docs/export.md, \"Formulas\") use the vehicle file's numbers: m, J_xx, "
             "J_yy, J_zz, C_T, C_Q, τ_m (motor_time_constant), u_min, u_max (rotor_speed_min, rotor_speed_max), "
-            "ground_z; rotor i's x_i, y_i, s_i (yaw_sign) and d_i (motor_imbalance's d<i>); an effect's parameter "
+            "ground_z, hub_z; rotor i's x_i, y_i, s_i (yaw_sign) and d_i (motor_imbalance's d<i>); an effect's parameter "
             "as effect.param (an effect listed twice: added, gains multiplied); "
             f"f = {g(pp.unit)} rad/s per {u}; g = 9.81 m/s²; n = {n} rotors; "
             f"ω_h = √({mass} · g / Σ_i k_i) = {g(pp.hover)} rad/s, the hover rotor speed, with k_i = "
@@ -241,12 +243,22 @@ def sizes(pp: Plant) -> dict[str, str]:
         "cg_offset": torque(float(np.linalg.norm(P[pl.P_CG:pl.P_CG + 2])) * W),
         "torque_bias": torque(float(np.linalg.norm(P[pl.P_TBIAS:pl.P_TBIAS + 3]))),
         "blade_flapping": f"{torque(abs(P[pl.P_FLAP]) * V_REF)} at {V_REF:g} m/s",
+        "rotor_drag_moment": f"{torque(P[pl.P_RDM] * pp.hover / pp.unit * float(np.sum(pp.rotor_pos[:, :2] ** 2)))} "
+                             "at 1 rad/s of yaw rate and hover rotor speed",
+        "translational_lift": f"{force(4 * P[pl.P_TLIFT] * V_REF**2)} at {V_REF:g} m/s",
         "actuator_delay": f"{1000 * P[pl.P_DELAY]:.3g} ms between the rotor speed and its wrench",
         "marker_offset": f"{1000 * float(np.linalg.norm(P[pl.P_MARKER:pl.P_MARKER + 3])):.3g} mm "
                          "between the tracked point and the CG",
         "torque_remainder": torque(float(np.max(np.abs(rem[:, 10]))) if P[pl.P_REM_ON] else 0.0)
         + " (its constant part; the rest grows with v_b, ω and the rotor loads)",
     }
+
+
+def untied_moment(P) -> str:
+    """A simulator whose rotor drag acts at the hubs, when rotor_drag_moment's k is not rotor_drag's: what its moment is."""
+    if not P[pl.P_RDRAG]:
+        return "the moment is absent (rotor_drag not named)"
+    return f"its moment has rotor_drag's k ({g(P[pl.P_RDRAG])}), not rotor_drag_moment's ({g(P[pl.P_RDM])})"
 
 
 def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list[str], version: str,
@@ -328,3 +340,25 @@ def ground_row(vehicle, key: str = "-", value: str = "-") -> Row:
                    "(ground_effect row)")
     return Row("ground_z", z, "-", "-", EXACT, "the floor's height in the log's world frame, used by no term of this "
                "vehicle (no ground_effect): nothing to map; put the simulator's floor there to match the log")
+
+
+HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")  # the terms that act at the hubs, hub_z above the CG
+
+
+def hub_row(vehicle, key: str, kept: tuple[str, ...] = ()) -> Row:
+    """``hub_z`` for a simulator whose rotors sit in the CG's plane (``key``'s z is 0): the thrusts' moment about
+    the CG does not depend on the height, only the terms at the hubs do (``kept``: those the simulator carries)."""
+    z = g(vehicle.hub_z) + " m"
+    named = [n for n in HUB_EFFECTS if has(vehicle, n)]
+    if not named or vehicle.hub_z == 0:
+        note = ("the rotors sit in the CG's plane" + (", as the hubs do" if named else "") + ": the thrusts' moment "
+                "about the CG does not depend on their height" + ("" if named else "; no term of this vehicle acts "
+                                                                     "at the hubs (no " + " or ".join(HUB_EFFECTS) + ")"))
+        return Row("hub_z", z, key, "0 m", EXACT, note, formula="0")
+    kept = [n for n in named if n in kept]
+    lost = [n for n in named if n not in kept]
+    parts = ([f"{', '.join(kept)}: the roll/pitch part of the moment is left out"] if kept else []) \
+        + ([f"{', '.join(lost)} left out (their rows)"] if lost else [])
+    note = "the rotors sit in the CG's plane, not hub_z above it: " + "; ".join(parts)
+    return Row("hub_z", z, key, "0 m", APPROXIMATE if kept else IMPOSSIBLE, note, formula="0")
+

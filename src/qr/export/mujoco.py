@@ -226,6 +226,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "-", "-", IMPOSSIBLE,
             "MJCF motors act at once: give ctrl the rotor speeds after your motor model (ctrl = ω(t)²)"),
         mp.ground_row(vehicle),
+        mp.hub_row(vehicle, "site rotor_i@pos (z)"),
     ]
     size = mp.sizes(pp)
     P = pp.P

@@ -199,6 +199,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         Row("(none)", "-", "rollingMomentCoefficient", "0", EXACT,
             "gz's rolling moment is a torque about v⊥; qr has no such term (flapping acts about v × e_z)", formula="0"),
         mp.ground_row(vehicle),
+        mp.hub_row(vehicle, "rotor_<i> pose (z)", kept=("rotor_drag_moment",) if pp.P[pl.P_RDRAG] else ()),
     ]
     size = mp.sizes(pp)
     P = pp.P
@@ -225,8 +226,23 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         elif name == "rotor_drag":
             out.append(Row(name, val, "rotorDragCoefficient", plug[0]["rotorDragCoefficient"] + " N s/m per rad/s",
                            APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
-                           "velocity (v + ω × r_i): exact at equal rotor speeds and zero body rate",
+                           "velocity (v + ω × r_i): its force is qr's at equal rotor speeds and zero body rate"
+                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)"
+                              if P[pl.P_RDM] == P[pl.P_RDRAG] else
+                              "; its moment about the CG (a yaw-rate damping) is gz's addition (rotor_drag_moment, not named)"),
                            formula="rotor_drag.k / f"))
+        elif name == "rotor_drag_moment":
+            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            flat = pp.hub_z == 0
+            out.append(Row(name, val, "rotorDragCoefficient; rotor_<i> pose", plug[0]["rotorDragCoefficient"]
+                           + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           ("gz's rotor drag acts at each rotor link with the link's velocity: its moment about the CG is "
+                            "qr's term with rotor_drag's k" + ("" if flat else
+                                                               f"; the links sit in the CG's plane, not hub_z = {g(pp.hub_z)} m "
+                                                               "above it: the roll/pitch part is left out")) if same else
+                           f"gz's rotor drag is a force at the links, its moment comes with it: rotorDragCoefficient "
+                           f"carries rotor_drag's k, {mp.untied_moment(P)} "
+                           f"({size[name]})", formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
         elif name == "blade_flapping":
             out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"torque about v × e_z ({size[name]}); gz's "
                            "rollingMomentCoefficient acts about v⊥ itself, a different axis: left at 0, flapping "

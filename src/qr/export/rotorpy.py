@@ -16,11 +16,14 @@ derived term by term (docs/export.md):
 
 - ``k_eta = C_T / f²``, ``k_m = C_Q / f²`` with ``f`` rad/s per vehicle unit; ``rotor_directions_i =
   yaw_sign_i`` (RotorPy multiplies ``k_m ω²`` by it as the body-z moment: the sign of the reaction
-  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, 0)``: the CG offset is exact there
+  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, hub_z)``: the CG offset is exact there
   (the thrusts' moment about the CG is ``Γ - c × T``, the catalog's ``[-r_y T, r_x T, 0]``).
-- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (the force is exact; RotorPy applies it at the hubs,
-  adding a yaw moment ``-k_d Σ ω_i (x_i v_iy - y_i v_ix)`` that qr lacks: zero at equal rotor speeds and
-  no yaw rate).
+- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (``rotor_drag_matrix = diag(k_d, k_d, 0)``; RotorPy
+  applies it at the hubs with their airspeed, so its force has ``-k_d Σ ω_i (ω × r_i)_xy`` more: zero at
+  equal rotor speeds with no roll/pitch rate or the hubs in the CG's plane), and its moment about the CG,
+  ``Σ r_i × H_i``, is qr's ``rotor_drag_moment`` with the same ``k`` exactly (``rotor_pos`` at ``hub_z``):
+  named together, the one ``k_d`` carries both; rotor_drag alone, the moment is RotorPy's addition.
+- translational_lift ``k (w_ix² + w_iy²)`` per rotor → ``k_h = k``: exact (the same hub airspeed).
 - blade_flapping ``k [v_y, -v_x, 0]`` → ``k_flap = -k / (4 ω_hover)``: RotorPy's flapping grows with the
   rotor speed, qr's does not; exact at a rotor-speed sum of ``4 ω_hover`` (relative error
   ``|Σω / (4 ω_hover) - 1|`` otherwise).  The minus sign: RotorPy's moment is ``-k_flap Σω [v_y, -v_x, 0]``.
@@ -64,7 +67,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rotor_radius": display_radius(pp),
         "c_Dx": P[pl.P_QUAD], "c_Dy": P[pl.P_QUAD + 1], "c_Dz": P[pl.P_QUAD + 2],
         "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
-        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": 0.0,
+        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[pl.P_TLIFT],
         "k_flap": -P[pl.P_FLAP] / (4 * pp.hover),
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
         "motor_noise_std": 0.0, **DEFAULT_GAINS,
@@ -94,6 +97,8 @@ def qr_terms(vehicle, pp: mp.Plant) -> dict:
         "quadratic_drag": list(P[pl.P_QUAD:pl.P_QUAD + 3]),  # N s²/m²
         "rotor_drag": P[pl.P_RDRAG] / pp.unit,  # N s/m per rad/s
         "blade_flapping": P[pl.P_FLAP],  # N m s/m
+        "rotor_drag_moment": P[pl.P_RDM] / pp.unit,  # N s/m per rad/s, at the hubs
+        "translational_lift": P[pl.P_TLIFT],  # N s²/m² per rotor, at the hubs
         "wind_force": list(P[pl.P_WIND:pl.P_WIND + 3]),  # N, world
         "body_force_bias": list(P[pl.P_BBIAS:pl.P_BBIAS + 3]),  # N
         "torque_bias": list(P[pl.P_TBIAS:pl.P_TBIAS + 3]),  # N m
@@ -158,8 +163,9 @@ class QrMultirotor(Multirotor):
     """RotorPy's Multirotor plus the terms of qr's model it has no key for (the learned ones included).
 
     exact_aero=True (default): RotorPy's own aerodynamics are switched off (aero=False) and qr's exact
-    drag and flapping terms are added instead, so the vehicle integrates qr's plant.
-    exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_flap, c_D: approximate where
+    drag, flapping, rotor-drag moment and translational lift terms are added instead, so the vehicle
+    integrates qr's plant.
+    exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_h, k_flap, c_D: approximate where
     mapping.md says), plus the terms it has no key for (a learned wrench then adds to RotorPy's
     aerodynamics, not to the qr model it was trained on)."""
 
@@ -185,6 +191,13 @@ class QrMultirotor(Multirotor):
             F -= t["linear_drag"] * vb + t["quadratic_drag"] * np.abs(vb) * vb
             F[:2] -= t["rotor_drag"] * speeds.sum() * vb[:2]
             M += t["blade_flapping"] * np.array([vb[1], -vb[0], 0.0])
+            if t["rotor_drag_moment"] or t["translational_lift"]:  # at each hub, with its airspeed v_b + w x r_i
+                r = self.rotor_geometry
+                wh = vb + np.cross(w, r)
+                lift = t["translational_lift"] * (wh[:, 0]**2 + wh[:, 1]**2)
+                H = -t["rotor_drag_moment"] * speeds[:, None] * wh * np.array([1.0, 1.0, 0.0])
+                M += np.cross(r, H + np.outer(lift, [0.0, 0.0, 1.0])).sum(axis=0)
+                F[2] += lift.sum()
         F += t["body_force_bias"]
         M += t["torque_bias"]
         if t["ground_effect"]:
@@ -226,6 +239,8 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     size = mp.sizes(pp)
     u = vehicle.rotor_speed_unit
     rx, ry = mp.fx_cg(vehicle)
+    P = pp.P
+    lift = mp.has(vehicle, "translational_lift")  # named: its row maps k_h
     out = mp.common_rows(vehicle, pp, {
         "name": (f"module {file_stem(vehicle)}_params", file_stem(vehicle), ""),
         "mass": ("mass", g(qp["mass"]) + " kg", mp.fx_mass(vehicle)),
@@ -237,10 +252,10 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle)),
     })
     out += [
-        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions), "rotor_pos",
-            ", ".join(f"({g(r[0])}, {g(r[1])}, 0)" for r in pp.rotor_pos), EXACT,
-            "m, relative to the CG (cg_offset subtracted); rotor plane through the CG",
-            formula=f"({mp.fx_minus('x_i', rx)}, {mp.fx_minus('y_i', ry)}, 0)"),
+        Row("layout (rotor x, y), hub_z", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions)
+            + f"; {g(pp.hub_z)} m", "rotor_pos", ", ".join(f"({g(r[0])}, {g(r[1])}, {g(r[2])})" for r in pp.rotor_pos),
+            EXACT, "m, relative to the CG (cg_offset subtracted); the hubs hub_z above it",
+            formula=f"({mp.fx_minus('x_i', rx)}, {mp.fx_minus('y_i', ry)}, hub_z)"),
         Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "rotor_directions",
             ", ".join(f"{s:+g}" for s in pp.yaw_signs), EXACT,
             "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign",
@@ -251,9 +266,9 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             "rotor_speed_min, rotor_speed_max", f"{g(qp['rotor_speed_min'])}, {g(qp['rotor_speed_max'])} rad/s", EXACT,
             "× f", formula="f · u_min, f · u_max"),
         mp.ground_row(vehicle, "QR_TERMS['ground_z']", g(pp.P[pl.P_GZ]) + " m"),
-        Row("(none: no translational lift, no vertical rotor drag in qr)", "-", "k_h, k_z", "0, 0", EXACT,
-            "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over",
-            formula="0, 0"),
+        Row("(none: no vertical rotor drag in qr" + ("" if lift else ", no translational_lift named") + ")",
+            "-", "k_z" + ("" if lift else ", k_h"), "0" + ("" if lift else ", 0"), EXACT,
+            "RotorPy's defaults for other vehicles are not carried over", formula="0" + ("" if lift else ", 0")),
         Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG",
             formula="0, 0, 0, 0"),
         Row("(none: qr has no propeller size)", "-", "rotor_radius", g(qp["rotor_radius"]) + " m", EXACT,
@@ -263,7 +278,6 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)",
             formula=", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att"))),
     ]
-    P = pp.P
     terms = qr_terms(vehicle, pp)
     n = len(pp.yaw_signs)
 
@@ -282,7 +296,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            formula=mp.fx_k_yaw(vehicle)))
         elif name == "cg_offset":
             out.append(Row(name, val(name), "rotor_pos", "(shifted)", EXACT,
-                           "rotor_pos_i = (x_i - rx, y_i - ry, 0): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
+                           "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
         elif name == "motor_imbalance":
             ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
             out.append(Row(name, val(name), "k_eta (mean) + QR_TERMS['thrust_scale']",
@@ -290,11 +304,30 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
                            "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})"))
         elif name == "rotor_drag":
-            out.append(Row(name, val(name), "k_d", g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
-                           "k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
-                           "airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
-                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly",
-                           formula="rotor_drag.k / f"))
+            both = P[pl.P_RDM] == P[pl.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
+            out.append(Row(name, val(name), "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",
+                           g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
+                           "k_d = k / f; RotorPy applies -k_d ω_i [w_x, w_y] at each hub with its airspeed w = v + ω × r_i: "
+                           "its force has -k_d Σ ω_i (ω × r_i)_xy more than qr's -k Σu [v_x, v_y] (zero at equal rotor "
+                           "speeds with no roll/pitch rate or the hubs in the CG's plane)"
+                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)" if both else
+                              "; its moment about the CG, a yaw-rate damping -k_d Σ ω_i (r_ix² + r_iy²) ω_z and more, is "
+                              "RotorPy's addition (qr's rotor_drag_moment, not named)")
+                           + ". QrMultirotor (exact_aero) applies qr's terms exactly", formula="rotor_drag.k / f"))
+        elif name == "rotor_drag_moment":
+            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            out.append(Row(name, val(name), "k_d (rotor_drag_matrix), rotor_pos", g(qp["k_d"]) + " N s/m per rad/s",
+                           EXACT if same else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           "k_d = k / f, the same as rotor_drag's: RotorPy's rotor drag at the hubs has the moment "
+                           "Σ r_i × (-k_d ω_i [w_ix, w_iy, 0]) about the CG, qr's term exactly" if same else
+                           f"RotorPy's rotor drag is a force at the hubs, its moment comes with it: k_d carries rotor_drag's "
+                           f"k ({g(qp['k_d'])} per rad/s), {mp.untied_moment(P)} "
+                           f"({size[name]}). QrMultirotor (exact_aero) applies qr's term exactly",
+                           formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
+        elif name == "translational_lift":
+            out.append(Row(name, val(name), "k_h", g(qp["k_h"]) + " N/(m/s)² per rotor", EXACT,
+                           "k_h = k: RotorPy's thrust k_eta ω_i² + k_h (w_ix² + w_iy²) with the hub airspeed w = v + ω × r_i, "
+                           "qr's term", formula="translational_lift.k"))
         elif name == "blade_flapping":
             out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
                            f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "

@@ -30,6 +30,10 @@ FAMILIES = {
     "kinematics": ("marker_offset",),
 }
 FAMILY_OF = {e: f for f, members in FAMILIES.items() for e in members}
+# the effects that act at the rotor hubs (issue 36): drawn in scenarios of their own (:func:`hub_combinations`),
+# so that the 44 scenarios of :func:`combinations`, measured before they existed, stay the same flights
+HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")
+DRAWN = tuple(e for e in CATALOG if e not in HUB_EFFECTS)  # what combinations() draws from
 
 # the same term, or the same to first order, never drawn together: thrust_gain = m/(m+dm) in force and
 # an all-equal motor_imbalance; Ω ≈ const makes rotor drag a linear drag in x/y; with near-equal rotor
@@ -63,8 +67,10 @@ def draw_parameters(name: str, vehicle, rng: np.random.Generator) -> dict:
         v = m * rng.uniform(0.15, 0.6, 3)
     elif name == "quadratic_drag":  # c/m in 0.08 .. 0.4 1/m
         v = m * rng.uniform(0.08, 0.4, 3)
-    elif name == "rotor_drag":  # k Σu / m in 0.15 .. 0.6 1/s
-        v = m * rng.uniform(0.15, 0.6, 1) / (4 * u_h)
+    elif name in ("rotor_drag", "rotor_drag_moment"):  # k Σu / m in 0.15 .. 0.6 1/s (the moment: a yaw-rate
+        v = m * rng.uniform(0.15, 0.6, 1) / (4 * u_h)  # damping of 0.15 .. 0.6 m r², J_zz / it 0.6 .. 4 s)
+    elif name == "translational_lift":  # four rotors' lift at 1 m/s: 0.5 .. 2 % of the weight
+        v = mg * rng.uniform(0.005, 0.02, 1) / 4
     elif name in ("wind_force", "body_force_bias"):  # 2 .. 8 % of the weight per axis
         v = mg * _signed(rng, 0.02, 0.08, 3)
     elif name == "thrust_gain":  # C_T off by 3 .. 10 %
@@ -123,11 +129,11 @@ def combinations(n: int = 44, seed: int = 0) -> list[Scenario]:
         while True:
             names = [rng.choice(FAMILIES[fa]), rng.choice(FAMILIES[fb])]
             if len(sets) % 3 == 2:
-                names.append(rng.choice(sorted(set(CATALOG) - set(names))))
+                names.append(rng.choice(sorted(set(DRAWN) - set(names))))
             if compatible(names):
                 break
         sets.append([str(x) for x in names])
-    singles = list(CATALOG)
+    singles = list(DRAWN)
     rng.shuffle(singles)
     sets += [[s] for s in singles]
     out = []
@@ -140,10 +146,26 @@ def combinations(n: int = 44, seed: int = 0) -> list[Scenario]:
     return out
 
 
+def hub_combinations(seed: int = 0) -> list[Scenario]:
+    """The hub effects' scenarios: each beside a member of every family (drawn), then each alone (20)."""
+    rng = np.random.default_rng([seed, 36])
+    sets = [[h, str(rng.choice(FAMILIES[f]))] for h in HUB_EFFECTS for f in FAMILIES] + [[h] for h in HUB_EFFECTS]
+    out = []
+    for i, names in enumerate(sets):
+        r = np.random.default_rng([seed, 36, i])
+        out.append(Scenario(seed=3600 + i, effects=names, vehicle=["asctec_hummingbird", "crazyflie21_brushless"][i % 2],
+                            noise_scale=float(r.uniform(0.5, 2.0)), tilt_max_deg=float(r.uniform(15, 30)),
+                            v_max=float(r.uniform(1.0, 2.5))))
+    return out
+
+
 def materialise(sc: Scenario, vehicle) -> Scenario:
     """Draw the parameters of a scenario's effects for ``vehicle``."""
     rng = np.random.default_rng([sc.seed, 7])
     sc.effects = [{"name": n, "parameters": draw_parameters(n, vehicle, rng)} for n in sc.effects]
+    drag = {e["name"]: e for e in sc.effects}
+    if {"rotor_drag", "rotor_drag_moment"} <= set(drag):  # one rotor drag: its force and moment share k
+        drag["rotor_drag_moment"]["parameters"] = dict(drag["rotor_drag"]["parameters"])
     if "ground_effect" in sc.names:  # dips to 0.7 arm lengths: where ground effect matters for any size
         sc.low_height = 0.7 * float(np.max(np.hypot(*vehicle.rotors.positions.T)))
     return sc
