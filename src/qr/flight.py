@@ -354,13 +354,14 @@ def check_hover_ratio(df, vehicle, path=None):
 
 
 def write_flight(df: pd.DataFrame, path: str | Path) -> None:
-    """Write CSV (``.csv``) or Parquet (``.parquet``) atomically."""
+    """Write CSV (``.csv``) or Parquet (``.parquet``) atomically, every value read back to the bit: the CSV
+    holds each float's shortest round-trip decimal (an epoch stamp, ~1.7e9 s, keeps its microseconds)."""
     path = Path(path)
     with atomic_path(path) as tmp:
         if path.suffix == ".parquet":
             df.to_parquet(tmp, index=False)
         else:
-            df.to_csv(tmp, index=False, float_format="%.9g")
+            df.to_csv(tmp, index=False, float_format=None)
 
 
 def dropouts(df: pd.DataFrame) -> dict:

@@ -56,19 +56,17 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:
     """``qr summary``: one row per flight file, ``out`` (CSV) and the same table beside it as Markdown."""
-    from ..atomic import atomic_path, write_text
     from ..flight import read_flight
     from ..ingest.summary import flight_summary  # (imported here: qr ingest needs none of it)
     from ..outputs import check_out_file
+    from ..report.tables import write_table
     from ..vehicle import load_vehicle
 
     for o in (out, Path(out).with_suffix(".md")):
         check_out_file(o, inputs=[*flights, vehicle_file], force=force)
     vehicle = load_vehicle(vehicle_file)
     table = pd.DataFrame([flight_summary(read_flight(f), vehicle, Path(f).stem) for f in flights])
-    with atomic_path(out) as tmp:
-        table.to_csv(tmp, index=False, float_format="%.6g")
-    write_text(Path(out).with_suffix(".md"), table.to_markdown(index=False, floatfmt=".4g") + "\n")
+    write_table(table, out)
     return table
 
 
