@@ -30,6 +30,9 @@ REQUIRED = ["t", *POSITION, *QUATERNION, *ROTORS]
 ACCEL = ["ax", "ay", "az"]  # accelerometer: specific force, body frame, m/s²
 GYRO = ["gx", "gy", "gz"]  # gyro: body rate, rad/s
 OPTIONAL = [*ACCEL, *GYRO, "vbat"]
+VELOCITY = ["vx", "vy", "vz"]  # a world-frame velocity some exports carry (not a spec column: carried along)
+# the frames a CSV may be written in (qr ingest --frame): world / body
+FRAMES = {"enu-flu": "ENU world, FLU body (docs/spec/flight-log.md)", "ned-frd": "NED world, FRD body (PX4's)"}
 QUAT_NORM_TOL = 0.05  # |‖q‖ - 1| above this is not a rounding error
 
 
@@ -362,6 +365,30 @@ def write_flight(df: pd.DataFrame, path: str | Path) -> None:
             df.to_parquet(tmp, index=False)
         else:
             df.to_csv(tmp, index=False, float_format=None)
+
+
+def to_spec_frames(df: pd.DataFrame, frame: str, path=None) -> pd.DataFrame:
+    """A flight written in ``frame`` (:data:`FRAMES`) in the spec's ENU world / FLU body: positions,
+    velocity (``vx, vy, vz``, where all three are there), attitude, gyro and accelerometer converted
+    (:func:`qr.frames.from_ned_frd`, ``frd_to_flu``); every other column as it was."""
+    if frame not in FRAMES:
+        raise _error(path, f"unknown frame '{frame}'", f"use one of {', '.join(FRAMES)}")
+    if frame == "enu-flu":
+        return df
+    from .frames import NED_TO_ENU, from_ned_frd
+
+    out = df.copy()
+    out[POSITION], out[QUATERNION] = from_ned_frd(df[POSITION].to_numpy(float), df[QUATERNION].to_numpy(float))
+    given = [c for c in VELOCITY if c in df]
+    if given and len(given) < 3:
+        raise _error(path, f"the velocity has {', '.join(given)} but not {', '.join(sorted(set(VELOCITY) - set(given)))}",
+                     "give vx, vy, vz together (a NED velocity is converted as a whole), or none")
+    if given:
+        out[VELOCITY] = df[VELOCITY].to_numpy(float) @ NED_TO_ENU.T
+    for c in ("ay", "az", "gy", "gz"):  # FRD -> FLU body: y and z turn over, x stays
+        if c in df:
+            out[c] = -df[c].to_numpy(float)
+    return out
 
 
 def dropouts(df: pd.DataFrame) -> dict:

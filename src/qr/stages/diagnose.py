@@ -109,7 +109,7 @@ def _read(flights, vehicle_file, overrides, reports, estimates, say, plotting=No
     from ..estimation.crossfit import diagnosis_estimates
 
     settings = Settings.of(_compose(overrides))
-    read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say)
+    read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say, vehicle_file)
     if plotting:
         plotting.start()
     work = diagnosis_estimates([fs.used for fs in read.split], [Path(f).name for f in flights], vehicle,

@@ -86,7 +86,8 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     models = models_of(vehs, names)
     per_flight, steps = {}, []
     for i, (f, m) in enumerate(zip(flights, measured)):
-        conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command")
+        conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command",
+                            vehicles[0])
         parts = []
         for st, meas, keep in estimated_pieces(f, m, vehs[0], ecfg, filter_cfg, reports[i] if reports else None,
                                                estimates[i] if estimates and reports else None, say):
