@@ -341,19 +341,32 @@ def check_hover_ratio(df, vehicle, path=None):
     if not np.isnan(ratio) and not lo <= ratio <= hi:
         unit = vehicle.rotor_speed_unit
         other = "rad_s" if unit == "rpm" else "rpm"
-        # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
-        factor = (SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]) ** 2
-        hint = ""
-        if lo <= ratio * factor <= hi:
-            hint = f"the speeds look like {other}, not {unit}:"
         if vehicle.rotor_input == "command" and np.nanmax(np.abs(df[ROTORS].to_numpy(dtype=float))) <= 1.01:
             raise _error(path, "u1..u4 look like motor commands, not rotor speeds",
                          "convert them first: qr ingest FLIGHT --vehicle V.yaml --out flight.csv (the vehicle's "
                          "command_map gives the equivalent rotor speeds)")
-        raise _error(path, f"rotor speeds give a median thrust of {ratio:.3g} x m g "
-                           f"(plausible: {lo:.2f}-{hi:.0f}); a unit or coefficient error",
-                     f"{hint + ' ' if hint else ''}check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "
-                     f"and that u1..u4 are rotor speeds")
+        # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
+        factor = (SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]) ** 2
+        problem = (f"rotor speeds give a median thrust of {ratio:.3g} x m g (plausible: {lo:.2f}-{hi:.0f}); a unit "
+                   "or coefficient error")
+        if lo <= ratio * factor <= hi:
+            raise _error(path, problem, other_speed_unit_fix(vehicle))
+        raise _error(path, problem, f"check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "
+                                    f"and that u1..u4 are rotor speeds")
+
+
+def other_speed_unit_fix(vehicle) -> str:
+    """The whole fix for rotor speeds logged in the other unit than the vehicle file's: convert the log, or
+    switch the file's unit *and* its coefficients (C_T and C_Q are per unit², so they scale by the square)."""
+    unit = vehicle.rotor_speed_unit
+    other = "rad_s" if unit == "rpm" else "rpm"
+    k = SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]  # one `other` in `unit`s
+    per = "60/2π" if other == "rad_s" else "2π/60"
+    return (f"the speeds look like {other}, not {unit}: either multiply u1..u4 by {per} = {k:.6g} "
+            f"(to {unit}), or set rotor_speed_unit: {other} in the vehicle file together with "
+            f"thrust_coeff: {vehicle.thrust_coeff * k**2:.6g} and torque_coeff: {vehicle.torque_coeff * k**2:.6g} "
+            f"(C_T and C_Q are per unit², so both x ({per})² = {k**2:.6g}: now {vehicle.thrust_coeff:.6g} and "
+            f"{vehicle.torque_coeff:.6g})")
 
 
 def write_flight(df: pd.DataFrame, path: str | Path) -> None:
