@@ -144,7 +144,7 @@ def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, 
     out = []
     for seg in fs.used:
         got = stored.get(seg.window[0]) if stored else None
-        say(f"estimates of {Path(path).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+        say(f"estimates of {path} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
             + ("read from the filter stage" if got else "filtering"))
         st = got[0] if got else estimate(seg.rows, vehicle, settings)[0]
         out.append(pieces(st, seg.rows, ecfg.trim_s))
