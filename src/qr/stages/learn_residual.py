@@ -220,8 +220,9 @@ def curve_figure(doc: dict, path: Path) -> None:
     ax.plot(x, [doc["initial_loss"]["train_loss"]] + [e["train_loss"] for e in ep], label="training", color="C0")
     ax.plot(x, [doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in ep], label="validation", color="C1")
     ax.axvline(doc["epochs"]["best"], color="0.5", ls=":", label=f"kept (epoch {doc['epochs']['best']})")
-    ax.set_xlabel("epoch (0: the vehicle without the residual)")
-    ax.set_ylabel("rollout loss (weighted MAE / rate_frozen)")
+    ax.set_xlabel("epoch (count; 0: " + ("the vehicle's own residual)" if doc["network"]["start"].startswith("fine")
+                                        else "the vehicle without the residual)"))
+    ax.set_ylabel("rollout loss (ratio: weighted MAE / rate_frozen's)")
     ax.legend(fontsize=7)
     figures.save(fig, path)
 
