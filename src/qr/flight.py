@@ -382,8 +382,8 @@ def write_flight(df: pd.DataFrame, path: str | Path) -> None:
 
 def to_spec_frames(df: pd.DataFrame, frame: str, path=None) -> pd.DataFrame:
     """A flight written in ``frame`` (:data:`FRAMES`) in the spec's ENU world / FLU body: positions,
-    velocity (``vx, vy, vz``, where all three are there), attitude, gyro and accelerometer converted
-    (:func:`qr.frames.from_ned_frd`, ``frd_to_flu``); every other column as it was."""
+    velocity (``vx, vy, vz``, where all three are there), attitude (:func:`qr.frames.from_ned_frd`), gyro and
+    accelerometer (their y and z negated, each column that is there); every other column as it was."""
     if frame not in FRAMES:
         raise _error(path, f"unknown frame '{frame}'", f"use one of {', '.join(FRAMES)}")
     if frame == "enu-flu":

@@ -126,3 +126,11 @@ def test_a_ulog_needs_no_frame(tmp_path, capsys):
     status, _, err = run_cli(["ingest", log, "--vehicle", VEHICLES / "asctec_hummingbird.yaml", "--frame", "ned-frd",
                               "--out", tmp_path / "f.csv"], capsys)
     assert status == 2 and "--frame ned-frd is for CSV" in err and "leave --frame out" in err, err
+
+
+def test_the_command_line_knows_the_frames_qr_converts():
+    from qr.cli import _parser
+    from qr.flight import FRAMES
+
+    ingest = next(a for a in _parser()._subparsers._group_actions[0].choices["ingest"]._actions if a.dest == "frame")
+    assert list(ingest.choices) == list(FRAMES) and ingest.default == "enu-flu"
