@@ -42,5 +42,5 @@ def test_the_split_names_the_flights_by_their_paths():
 def test_what_is_kept_when_no_epoch_improves():
     assert kept_sentence(1.8441, [21.17, 3.2], False) == (
         "no epoch improved the validation loss (1.844 at the start, 3.2 at best over 2 epoch(s)): the weights at the "
-        "start are kept, a network of zero output: the hybrid is the vehicle without a residual, its errors unchanged")
+        "start are kept, a network of zero output (the hybrid flies as the vehicle without a residual)")
     assert kept_sentence(0.5, [0.5], True).endswith("the vehicle's own residual, unchanged by this training")

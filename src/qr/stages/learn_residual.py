@@ -249,7 +249,7 @@ def kept_sentence(initial: float, epochs: list[float], fine_tuned: bool) -> str:
     return (f"no epoch improved the validation loss ({initial:.4g} at the start, {best:.4g} at best over "
             f"{len(epochs)} epoch(s)): the weights at the start are kept, "
             + ("the vehicle's own residual, unchanged by this training" if fine_tuned else
-               "a network of zero output: the hybrid is the vehicle without a residual, its errors unchanged"))
+               "a network of zero output (the hybrid flies as the vehicle without a residual)"))
 
 
 def change_sentence(H: int, val: dict) -> str:
