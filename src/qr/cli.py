@@ -73,7 +73,8 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
     s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                       epilog="examples:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                              "--out flight.csv\n  qr ingest px4_export.csv --vehicle my_px4.yaml --frame ned-frd "
                               "--out flight.csv")
     s.add_argument("src", help="raw log: canonical CSV/Parquet, Crazyflie uSD binary, PX4 ULog, ROS 1 bag or ROS 2 bag folder")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
@@ -88,6 +89,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--skip-check", action="append", default=[], metavar="CHECK",
                    help="a convention check to skip, where you know the log is right (repeatable): thrust_axis, "
                         "gyro, rotor_layout (docs/cli.md)")
+    s.add_argument("--frame", default="enu-flu", choices=["enu-flu", "ned-frd"],
+                   help="the frames a CSV/Parquet log (or ROS bag) is written in: enu-flu (the spec's: ENU world, "
+                        "FLU body; default) or ned-frd (PX4's CSV exports: NED world, FRD body), converted to "
+                        "enu-flu: position, velocity vx..vz if present, attitude, gyro and accelerometer "
+                        "(docs/ingest.md). A PX4 ULog is converted without it")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -252,7 +258,7 @@ def _cmd_ingest(a):
     from .ingest.rosbag import parse_topics
 
     df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align,
-                     skip_checks=a.skip_check)
+                     skip_checks=a.skip_check, frame=a.frame)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
     for kind, o in df.attrs["time_offsets"].items():
         when = "late" if o["offset_s"] >= 0 else "early"

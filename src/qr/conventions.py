@@ -36,8 +36,8 @@ import pandas as pd
 
 from .airborne import airborne_mask
 from .errors import QrInputError
-from .flight import GYRO, HOVER_RATIO_LIMITS, POSITION, QUATERNION, ROTORS
-from .frames import G, NED_TO_ENU, FRD_TO_FLU, quat_to_rot, rot_to_quat
+from .flight import GYRO, HOVER_RATIO_LIMITS, POSITION, QUATERNION, ROTORS, to_spec_frames
+from .frames import G, quat_to_rot
 
 CHECKS = ("thrust_axis", "gyro", "rotor_layout")
 SMOOTH_S = 0.2  # Savitzky-Golay window shared by every signal (s): mocap second derivatives need it
@@ -84,13 +84,8 @@ def _q(df):
     return df[QUATERNION].to_numpy(float)
 
 
-def _ned_frd(df):
-    q = _q(df)
-    ok = np.isfinite(q).all(axis=1)
-    q2 = np.full_like(q, np.nan)
-    q2[ok] = rot_to_quat(NED_TO_ENU @ quat_to_rot(q[ok]) @ FRD_TO_FLU)
-    return _with(_with(df, POSITION, df[POSITION].to_numpy(float) @ NED_TO_ENU.T), QUATERNION, q2)
-
+# the command a fix names: {log} and {vehicle} are filled in by require() with the user's own files
+CONVERT_NED_FRD = "qr ingest {log} --vehicle {vehicle} --frame ned-frd --out FLIGHT.csv"
 
 THRUST_READINGS = (
     Reading("scalar_last", "the quaternion looks scalar-last (x, y, z, w)",
@@ -103,9 +98,9 @@ THRUST_READINGS = (
             "give positions in a z-up world frame (negate pz, and check the attitude's frame too)",
             lambda df: _with(df, ["pz"], -df["pz"].to_numpy(float))),
     Reading("ned_frd", "the log looks NED world with an FRD body (PX4's frames)",
-            "convert to ENU world / FLU body (p_enu = [y, x, -z]; R_enu_flu = T R_ned_frd F, see "
-            "docs/spec/flight-log.md), or read the log with qr ingest",
-            _ned_frd),
+            f"convert it to the spec's ENU world / FLU body: {CONVERT_NED_FRD} (positions, velocity, attitude, "
+            "gyro and accelerometer; docs/ingest.md)",
+            lambda df: to_spec_frames(df, "ned-frd")),
     Reading("millimetres", "the positions look like millimetres",
             "divide px, py, pz by 1000 so they are in metres",
             lambda df: _with(df, POSITION, df[POSITION].to_numpy(float) / 1000)),
@@ -444,14 +439,16 @@ def check(df: pd.DataFrame, vehicle, skip=()) -> list[CheckResult]:
     return [RUNNERS[name](pieces, vehicle) for name in todo]
 
 
-def require(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = "diagnose.skip_checks=[{name}]"
-            ) -> list[CheckResult]:
+def require(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = "diagnose.skip_checks=[{name}]",
+            vehicle_file=None) -> list[CheckResult]:
     """``check``, refusing the log (one line: the likely mistake and its fix) at the first failure;
-    ``how_to_skip``: the setting that turns a check off, as the user writes it (``{name}``: the check)."""
+    ``how_to_skip``: the setting that turns a check off, as the user writes it (``{name}``: the check);
+    ``vehicle_file``: the user's vehicle file, named in a fix that is a command."""
     results = check(df, vehicle, skip)
     for r in results:
         if not r.passed:
+            fix = r.fix.replace("{log}", str(path)).replace("{vehicle}", str(vehicle_file or "VEHICLE.yaml"))
             raise QrInputError(path, f"{r.mistake} ({r.measured})",
-                               f"{r.fix}; or, if the log is right, skip this check with "
+                               f"{fix}; or, if the log is right, skip this check with "
                                + how_to_skip.format(name=r.name))
     return results

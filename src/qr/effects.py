@@ -19,7 +19,7 @@ import numpy as np
 from .allowed import is_number
 from .errors import QrInputError
 from .frames import GRAVITY, skew
-from .rotors import HOVER_RATIO_LIMITS
+from .rotors import HOVER_RATIO_LIMITS, SPEED_UNIT_NAMES
 
 
 def _as_slice(idx):
@@ -429,6 +429,34 @@ def get(name: str, path=None) -> Effect:
         raise QrInputError(path, f"unknown effect '{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""),
                            f"use one of {', '.join(CATALOG)}")
     return CATALOG[name]
+
+
+DIMENSIONLESS = "-"  # a catalog unit: the parameter is a ratio or a fraction (a value is printed bare)
+
+
+def unit(name: str, param: str, vehicle=None) -> str:
+    """The unit of effect ``name``'s parameter ``param`` (:data:`DIMENSIONLESS` for a ratio; "" where the
+    catalog has no such parameter), the "rotor-speed unit" as the vehicle's where one is given."""
+    eff = CATALOG.get(name)
+    if eff is None or param not in eff.params:
+        return ""
+    u = eff.units[eff.params.index(param)]
+    if vehicle is not None:
+        u = u.replace("rotor-speed unit", SPEED_UNIT_NAMES.get(vehicle.rotor_speed_unit, vehicle.rotor_speed_unit))
+    return u
+
+
+def with_unit(name: str, param: str, value: float, fmt: str = ".4g", vehicle=None) -> str:
+    """``'0.3 N s/m'``: a parameter's value followed by its unit (bare for a ratio)."""
+    u = unit(name, param, vehicle)
+    return f"{value:{fmt}}" + ("" if u in ("", DIMENSIONLESS) else f" {u}")
+
+
+def effects_with_units(effects: list[dict], vehicle=None) -> str:
+    """``'linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); thrust_gain(gain=1.02)'``: each value with its unit
+    (read back by :func:`qr.report.overview.parse_named`)."""
+    return "; ".join(f"{e['name']}(" + ", ".join(f"{k}={with_unit(e['name'], k, v, '.4g', vehicle)}"
+                                                 for k, v in e["parameters"].items()) + ")" for e in effects)
 
 
 def parameter_ranges(eff: Effect, vehicle=None) -> str:

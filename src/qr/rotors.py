@@ -31,6 +31,7 @@ PLUS_YAW_SIGNS = (-1.0, 1.0, -1.0, 1.0)
 # the rotor map's median airborne thrust over the weight, m g, that a log may show: beyond it the speeds
 # are in another unit or the coefficients are wrong (qr.flight refuses the log; the thrust effects stop there)
 HOVER_RATIO_LIMITS = (1 / 3, 3.0)
+SPEED_UNIT_NAMES = {"rpm": "rpm", "rad_s": "rad/s"}  # a vehicle file's rotor_speed_unit as a reader writes it
 
 
 LAYOUTS = ("plus", "x")  # the named layouts (the rest: an explicit list of rotors)

@@ -273,3 +273,31 @@ def test_the_trained_wrench_size_is_recorded_for_the_exports(flights, trained):
     assert size["rms_torque"] == pytest.approx(hidden, rel=0.25), (size, hidden)
     assert size["rms_force"] < 0.01 * 0.7 * 9.81
     assert size["rms_torque"] == pytest.approx(np.linalg.norm(size["rms_torque_xyz"]), rel=1e-5)
+
+
+def test_no_better_epoch_keeps_a_zero_network_and_says_so(flights, tmp_path):
+    """A step size that only makes it worse (lr = 1): no epoch beats the start, the network written is zero, the
+    hybrid's validation errors equal the vehicle's to the bit, and the report and the log say exactly that;
+    the two flights (both named flight.csv) are named by their paths, which trains and which validates."""
+    from qr.stages.learn_residual import run_residual
+
+    a, b = str(flights / "a" / "flight.csv"), str(flights / "b" / "flight.csv")
+    said = []
+    doc = run_residual([a, b], flights / "a" / "vehicle.yaml", tmp_path / "res",
+                       [*TINY, "learn.lr=1", "learn.patience=1"], track=False, log=said.append)
+    assert doc["epochs"]["best"] == 0 and doc["loss_per_epoch"][0]["val_loss"] > doc["initial_loss"]["val_loss"]
+    with np.load(tmp_path / "res" / "residual.npz") as z:
+        last = sorted(k for k in z.files if k.startswith("W"))[-1]
+        assert not z[last].any() and not z["b" + last[1:]].any()  # zero output
+    mae = doc["validation"]["mae"]
+    assert mae["hybrid"] == mae["vehicle"]  # equal to the last bit
+    text = (tmp_path / "res" / "report.md").read_text()
+    assert "no epoch improved the validation loss" in text and "a network of zero output" in text
+    assert "leaves the validation error of p, v, R and w equal to the vehicle's to the last bit" in text
+    assert "raises" not in text and "lowers" not in text
+    assert f"2 flights given: 1 trains ({a}), 1 validates ({b}: early stopping, never trained on)" in text
+    assert any(f"1 trains ({a}), 1 validates ({b}" in m for m in said), said
+    assert any(m.startswith("no epoch improved the validation loss") for m in said), said
+    named = [m for m in said if "flight.csv" in m]
+    assert named and all(a in m or b in m for m in named), named  # never a bare "flight.csv"
+    assert f"on {a}:" in (tmp_path / "res" / "hybrid_vehicle.yaml").read_text().splitlines()[0]

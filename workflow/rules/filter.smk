@@ -65,6 +65,7 @@ rule filter_figures:
     input:
         flight=expand(rules.ingest.output[0], set=FIGURE_SET, flight=FIGURE_FLIGHT),
         states=expand(rules.filter.output.states, set=FIGURE_SET, flight=FIGURE_FLIGHT),
+        vehicle=vehicle_file(FIGURE_SET),  # the rotor speeds' unit on the figure's axis
     output:
         [report(f"results/figures/filter_{q}.png", caption="../report/filter_figures.rst", category="Filter")
          for q in FILTER_FIGURES],

@@ -33,7 +33,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..allowed import check_fields, setting
-from ..effects import CATALOG, TIED
+from ..effects import CATALOG, TIED, with_unit
 from .bootstrap import bootstrap
 from .edge import EDGE, Margins, margin, rank_key
 from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit, solve
@@ -145,7 +145,8 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
         if m.at_least(grow, cfg.consistency_rel, on_edge=True) and m.at_least(t, cfg.consistency_t, on_edge=True):
             cols = Columns.of(effects)
             show = "; ".join(f"{e}: " + ", ".join(
-                f"{p} = {v + n:.4g}" for p, v, n in zip(CATALOG[e].params, own[cols.slices[e]], CATALOG[e].neutral))
+                f"{p} = {with_unit(e, p, v + n)}" for p, v, n in zip(CATALOG[e].params, own[cols.slices[e]],
+                                                                 CATALOG[e].neutral))
                 for e in shared)
             return (f"force and torque disagree: fitted together, the {name} rows' residual grows by "
                     f"{100 * grow:.0f} % over their own fit ({show})")

@@ -101,12 +101,14 @@ def _axes(cell) -> list[float]:
 
 
 def parse_named(named) -> list[tuple[str, dict[str, float]]]:
-    """``"linear_drag(kx=0.0125, ky=0.0126); cg_offset(rx=0.001)"`` (qr.stages.diagnose.summary) -> pairs."""
+    """``"linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); cg_offset(rx=0.001 m)"`` (qr.stages.diagnose.summary:
+    each value followed by its unit, or bare) -> pairs of names and values."""
     if not isinstance(named, str) or named.strip() in ("", "none", "-"):
         return []
     out = []
     for name, params in re.findall(r"(\w+)\(([^)]*)\)", named):
-        out.append((name, {k.strip(): _num(v) for k, v in (p.split("=", 1) for p in params.split(",") if "=" in p)}))
+        out.append((name, {k.strip(): _num((v.split() or [""])[0])
+                           for k, v in (p.split("=", 1) for p in params.split(",") if "=" in p)}))
     return out
 
 
@@ -217,19 +219,15 @@ def _table(df: pd.DataFrame, caption: str) -> str:
     return body.replace('<table class="dataframe">', f'<table><caption>{html.escape(caption)}</caption>', 1)
 
 
-def _value(x: float, unit: str) -> str:
-    return f"{x:.3g}" + ("" if unit in ("-", "–") else " " + unit.replace("^2", "²"))
-
-
 def effects_html(effects: list[tuple[str, dict[str, float]]]) -> str:
     """The named effects in a reader's words, each parameter with its unit (the catalog's)."""
-    from ..effects import CATALOG
+    from ..effects import CATALOG, with_unit
 
     items = []
     for name, params in effects:
         eff = CATALOG.get(name)
-        units = dict(zip(eff.params, eff.units)) if eff else {}
-        vals = ", ".join(f"{html.escape(k)} = {html.escape(_value(v, units.get(k, '')))}" for k, v in params.items())
+        vals = ", ".join(f"{html.escape(k)} = {html.escape(with_unit(name, k, v, '.3g').replace('^2', '²'))}"
+                         for k, v in params.items())
         meaning = f" — {html.escape(eff.meaning)}" if eff and eff.meaning else ""
         items.append(f"<li><b>{html.escape(_plain(name))}</b>{meaning}: {vals} <span class=\"muted\">"
                      f"(<code>{html.escape(name)}</code>)</span></li>")

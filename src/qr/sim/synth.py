@@ -125,6 +125,9 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
         raise QrInputError("synthetic flight", f"the closed loop diverged at t = {t_bad:.2f} s",
                            "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
     truth = pd.DataFrame(out, columns=TRUTH_COLUMNS)
+    # the stamps a nanosecond clock logs (k dt carries the product's rounding, 22.499999999999996 for 22.5):
+    # written whole (qr.flight.write_flight), they read back as the decimals a logger would write
+    truth["t"] = np.round(truth["t"].to_numpy(), 9)
     lost = lost_control(truth)
     if lost:
         raise QrInputError("synthetic flight", f"the controller lost the vehicle: {lost}",

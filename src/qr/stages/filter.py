@@ -116,13 +116,16 @@ def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), na
                       track=track, crossfit_out=crossfit_out)
 
 
-def figures(flight_path, states_path, outdir, title: str = "") -> list[Path]:
-    """Filtered vs raw (thesis Figs. 4.2–4.8) for one flight: ``outdir/filter_<quantity>.png``."""
+def figures(flight_path, states_path, outdir, title: str = "", vehicle_file=None) -> list[Path]:
+    """Filtered vs raw (thesis Figs. 4.2–4.8) for one flight: ``outdir/filter_<quantity>.png`` (the rotor
+    speeds in the unit of ``vehicle_file``)."""
     import pandas as pd
 
     from ..estimation.plots import filtered_vs_raw
+    from ..vehicle import load_vehicle
 
-    return filtered_vs_raw(read_flight(flight_path), pd.read_parquet(states_path), outdir, title)
+    unit = load_vehicle(vehicle_file).rotor_speed_unit if vehicle_file else None
+    return filtered_vs_raw(read_flight(flight_path), pd.read_parquet(states_path), outdir, title, unit)
 
 
 def summarize(nis_files: dict, out_csv) -> None:

@@ -205,8 +205,9 @@ def tracking_study(sim: dict, tracked=None, progress: bool = True):
 
 
 def _effects_str(effects) -> str:
-    return "; ".join(f"{e['name']}(" + ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()) + ")"
-                     for e in effects)
+    from ..effects import effects_with_units
+
+    return effects_with_units(effects)
 
 
 def _with_ratios(df: pd.DataFrame) -> pd.DataFrame:
