@@ -225,7 +225,7 @@ def largest_effect(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int) -> tuple[Fit
     effect of ``f`` is not stated.
 
     The largest effect is the selection's first (the single effect that cuts the cross-validated loss
-    most), fitted alone on the training part, with its block-bootstrap standard errors and its share of the
+    most, as the selection accepted it), fitted alone on the training part, with its block-bootstrap standard errors and its share of the
     held-out residual alone (``explained``).  It is stated when (1) that share is at least
     ``LARGEST_MIN_SHARE`` and (2) the rows it acts on (force, torque) are described with it alone: their
     held-out residual within ``MISFIT`` of the vehicle's scale, what the model lacks on the other rows (a
@@ -235,7 +235,7 @@ def largest_effect(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int) -> tuple[Fit
     part the model lacks correlate with the catalog's other terms (the tilt the controller holds against
     an unmodelled force times a vertical wind mimics that force), so a larger set trades its parameters
     against it."""
-    first = next((s["effects"] for s in f.selection.path if s["size"] == 1), None)
+    first = next((s["effects"] for s in f.selection.path if s["size"] == 1 and s.get("accepted")), None)
     if first:
         e = first[0]
         judge = HeldOut(f.labels.cross, vehicle, f.force_only, f.fixed, f.slow)
