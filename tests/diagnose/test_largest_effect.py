@@ -32,6 +32,8 @@ from qr.sim.trajectory import TrajectoryConfig, random_trajectory, reference
 from qr.stages.diagnose import run_diagnosis
 from qr.vehicle import load_vehicle, save_vehicle
 
+pytestmark = pytest.mark.xdist_group("largest_effect")  # one worker flies and diagnoses the flight once
+
 TORQUE = 0.16  # N m, amplitude of each axis's swinging-load torque
 WIND_OF_WEIGHT = 0.5
 
