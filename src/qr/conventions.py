@@ -16,11 +16,11 @@ vehicle's unknown effects:
 - **rotor layout**: the roll, pitch and yaw torque of the rotor map moves with the torque the attitude
   needs, ``J ω̇ + ω × J ω``, on every axis (a partial correlation: the aerodynamic torques a rotor map
   leaves out projected out first).  Readings: every other numbering of the rotors, the yaw
-  signs reversed.
+  signs reversed, and the standard layouts (plus, x) in every numbering (an x file for a plus frame).
 
 A reading that explains the log far better than the log as written (the fit's residual ``RATIO``
-times smaller on some axis and no larger on any, or a numbering's summed correlation ``Z_LAYOUT``
-standard errors higher) is the likely mistake, and the check refuses the log in one line
+times smaller on some axis and no larger on any, or a rotor reading's summed correlation clearly
+higher: ``check_rotor_layout``) is the likely mistake, and the check refuses the log in one line
 naming it and the fix.  Skipped, with the reason said, where the log cannot tell (a hover without
 manoeuvres; no gyro).  A user who knows better names the check in ``skip_checks``.
 """
