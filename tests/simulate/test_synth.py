@@ -7,6 +7,7 @@ import yaml
 
 from conftest import VEHICLES, run_cli
 from decisions import needs_two_kernels
+from qr.sim.scenarios import EXAMPLES
 from qr.sim.synth import SynthConfig
 from qr.frames import quat_to_rot
 from qr.vehicle import load_vehicle
@@ -139,17 +140,14 @@ def _tracking(truth: pd.DataFrame) -> float:
 
 
 def test_every_catalog_effect_has_an_example_size():
-    from qr.effects import CATALOG, parse_effect_spec
-    from qr.sim.scenarios import EXAMPLES
+    from qr.effects import CATALOG, parse_effect_spec, validate_effect_list
 
     assert set(EXAMPLES) == set(CATALOG)
     vehicle = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
-    from qr.effects import validate_effect_list
-
     validate_effect_list([parse_effect_spec(f"{n}:{s}") for n, s in EXAMPLES.items()], vehicle=vehicle)
 
 
-EXAMPLE_CASES = sorted(__import__("qr.sim.scenarios", fromlist=["EXAMPLES"]).EXAMPLES) + [
+EXAMPLE_CASES = sorted(EXAMPLES) + [
     # the issue's mix at the catalog's sizes: the example rotor drag and flapping, a 7 % mass error
     "rotor_drag:k=1.3e-5 blade_flapping:k=0.03 mass_error:dm=0.05"]
 
@@ -161,7 +159,7 @@ def test_the_study_controller_flies_each_example_effect_on_ten_seeds(case):
     EXAMPLE_TRACKING_M of the reference throughout (12 s flights: the trajectory reaches its peak speed and
     tilt within any duration, by construction)."""
     from qr.effects import parse_effect_spec
-    from qr.sim.scenarios import EXAMPLE_TRACKING_M, EXAMPLES
+    from qr.sim.scenarios import EXAMPLE_TRACKING_M
     from qr.sim.synth import simulate_truth
     from qr.sim.trajectory import TrajectoryConfig
 
