@@ -17,30 +17,12 @@ from decisions import assert_same_decisions, diagnose_elsewhere
 from qr.stages.diagnose import run_diagnosis
 from qr.diagnose.core import rms
 from qr.effects import CATALOG, parse_effect_spec, total_term
+from qr.sim.scenarios import EXAMPLES
 from qr.sim.synth import NoiseConfig, SynthConfig, write_synth
 from qr.sim.trajectory import TrajectoryConfig
 from qr.vehicle import load_vehicle
 
-SINGLE = {
-    "linear_drag": "kx=0.3,ky=0.3,kz=0.15",
-    "quadratic_drag": "cx=0.15,cy=0.15,cz=0.5",
-    "rotor_drag": "k=1.3e-5",
-    "wind_force": "fx=0.5,fy=-0.3,fz=0.3",
-    "body_force_bias": "bx=0.2,by=-0.2,bz=0.3",
-    "thrust_gain": "gain=1.08",
-    "mass_error": "dm=0.06",
-    "ground_effect": "k=0.001",
-    "motor_imbalance": "d1=0.06,d2=-0.05,d3=0.04,d4=-0.06",
-    "cg_offset": "rx=0.01,ry=-0.008",
-    "torque_bias": "tx=0.02,ty=-0.015,tz=0.01",
-    "yaw_torque_gain": "gain=1.3",
-    "inertia_error": "dJxx=0.0015,dJyy=0.0015,dJzz=0.003",
-    "actuator_delay": "delay_s=0.03",
-    "marker_offset": "rx=0.03,ry=-0.02,rz=0.05",
-    "blade_flapping": "k=0.03",
-    "rotor_drag_moment": "k=1.3e-5",  # rotor_drag's k: a yaw-rate damping with J_zz / (k Σu Σr²) ≈ 1.4 s
-    "translational_lift": "k=0.01",  # 4 k v² = 2.3 % of the weight at 2 m/s
-}
+SINGLE = EXAMPLES  # the catalog's example sizes (qr.sim.scenarios: the one place)
 COMBOS = [
     ("linear_drag", "cg_offset"),
     ("wind_force", "yaw_torque_gain", "blade_flapping"),

@@ -106,6 +106,10 @@ def _named_causes(d: Diagnosis, doc: dict, vehicle=None) -> list[str]:
             L.append(f"| `{e['name']}` | {par} | {e['explained_fraction']:.3f} | "
                      f"{', '.join(e['confounded_with']) or '-'} |")
         L.append("")
+        if d.held_out.misfit:
+            L.append("The model does not describe this flight (above): its largest effect is stated, fitted alone, "
+                     "with its share of the held-out residual alone; nothing else is named, and extended_vehicle.yaml "
+                     "is the vehicle as given.\n")
         for e in doc["effects"]:
             L.append(f"- `{e['name']}`: {CATALOG[e['name']].doc}.")
             if e["confounded_with"]:
@@ -234,6 +238,9 @@ def _closing(d: Diagnosis, figs: dict) -> list[str]:
         if d.accelerometer else []
     L.append("## Figures\n")
     L += [f"### {title}\n\n![{title}](figures/{name})\n" for title, name in figs.items()]
+    if not d.described:
+        return L + ["## Extended model\n", "`extended_vehicle.yaml`: the vehicle as given, nothing added (the model "
+                    "does not describe this flight; what it identifies is in diagnosis.json's effects).\n"]
     return L + ["## Extended model\n",
                 "`extended_vehicle.yaml`: the nominal vehicle plus the named effects; `qr synth`, the replay and the "
                 "simulation study accept it.\n"]

@@ -144,10 +144,13 @@ def _write(out, diagnosis, vehicle, figures: bool, anatomy, force: bool) -> dict
         write_json(tmp / "diagnosis.json", doc)
         save_vehicle(diagnosis.extended_vehicle, tmp / "extended_vehicle.yaml",
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
-                            "the nominal parameters plus the named effects"
-                            + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
-                               "where the refinement may write them (diagnosis.json: refine)"
-                               if diagnosis.refinement is not None else ""))
+                            + ("the vehicle as given, nothing added: the model does not describe this flight "
+                               "(diagnosis.json: described, misfit; what it identifies is in its effects)"
+                               if not diagnosis.described else
+                               "the nominal parameters plus the named effects"
+                               + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
+                                  "where the refinement may write them (diagnosis.json: refine)"
+                                  if diagnosis.refinement is not None else "")))
     return doc
 
 
