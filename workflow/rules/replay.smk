@@ -9,7 +9,8 @@ from types import SimpleNamespace
 
 from qr.stages.replay_sets import overrides_of, replayed_flights
 
-TRAJECTORY_FILES = {k: str(v) for k, v in (DATA.get("trajectory_files") or {}).items()}
+TRAJECTORY_FILES = {k: str(v) if Path(str(v)).is_absolute() else os.path.normpath(DATA_ROOT / str(v))
+                    for k, v in (DATA.get("trajectory_files") or {}).items()}  # relative to the data root
 REPLAY_SETS = [s for s in SETS if (SETS[s].get("controller") or {}).get("name")
                and replayed_flights(SETS[s], TRAJECTORY_FILES)]
 
