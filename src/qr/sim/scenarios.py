@@ -29,7 +29,6 @@ FAMILIES = {
     "actuator dynamics": ("actuator_delay",),
     "kinematics": ("marker_offset",),
 }
-FAMILY_OF = {e: f for f, members in FAMILIES.items() for e in members}
 
 # the same term, or the same to first order, never drawn together: thrust_gain = m/(m+dm) in force and
 # an all-equal motor_imbalance; Ω ≈ const makes rotor drag a linear drag in x/y; with near-equal rotor
