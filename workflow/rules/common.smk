@@ -55,7 +55,7 @@ def raw_log(set_name, flight):
     return str(DATA_ROOT / s.get("dir", "") / (flight + s.get("suffix", "")))
 
 
-FLIGHTS_PER_JOB = int(config.get("flights_per_job") or 16)
+FLIGHTS_PER_JOB = int(config["flights_per_job"])  # conf/workflow.yaml
 
 
 def batches(set_name):
