@@ -9,6 +9,8 @@ it; /work/main/results is never touched.  Each full run is made once per test se
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import re
@@ -192,6 +194,30 @@ def stored(results: Path, stage: str | None = None, status: str | None = None) -
             con.close()
     except sqlite3.Error:  # the store is being created
         return set()
+
+
+@contextlib.contextmanager
+def store_held(results: Path):
+    """The tracking store's lock file (qr.tracking takes it to open every run), held by the test: a
+    process opening a run waits until the block ends.  Yields the lock file's path."""
+    lock = results / "mlflow.lock"
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield lock
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def waiting_for(lock: Path) -> bool:
+    """Does a process wait for the flock of ``lock``?  (Linux's /proc/locks marks a waiter with ``->``:
+    ``1: -> FLOCK ADVISORY WRITE <pid> <major>:<minor>:<inode> 0 EOF``.)"""
+    inode = str(lock.stat().st_ino)
+    for line in Path("/proc/locks").read_text().splitlines():
+        parts = line.split()
+        if len(parts) > 6 and parts[1] == "->" and parts[2] == "FLOCK" and parts[6].split(":")[-1] == inode:
+            return True
+    return False
 
 
 def parent_files(results: Path) -> dict[str, str]:
