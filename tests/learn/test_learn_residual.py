@@ -249,11 +249,11 @@ def test_a_sweep_is_one_parent_run_with_a_logged_model_per_job(flights, tmp_path
     model = mlflow.pyfunc.load_model(f"runs:/{child.info.run_id}/model")
     assert model.metadata.signature is not None
     # the logged module is the vehicle file's network: same wrench for the same features
-    from qr import residual as rs
+    from learning_data import residual_wrench
 
     res = load_vehicle(out / "job1" / "hybrid_vehicle.yaml").residual
     phi = res.input_mean + res.input_scale * np.random.default_rng(0).normal(size=(7, 13))
-    np.testing.assert_allclose(np.asarray(model.predict(phi), float), rs.forward(res, phi), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(model.predict(phi), float), residual_wrench(res, phi), rtol=1e-9, atol=1e-12)
 
 
 def test_the_trained_wrench_size_is_recorded_for_the_exports(flights, trained):

@@ -5,7 +5,6 @@
 # residuals (rule learn_residual; the carry-to set's carried network too).  From the raw logs: their motor
 # commands give the setpoints' start time, start point and the controller's mass.
 
-from types import SimpleNamespace
 
 from qr.stages.replay_sets import overrides_of, replayed_flights
 
@@ -17,7 +16,7 @@ REPLAY_SETS = [s for s in SETS if (SETS[s].get("controller") or {}).get("name")
 
 rule replay:
     input:
-        logs=lambda wc: [raw_log(SimpleNamespace(set=wc.set, flight=f))
+        logs=lambda wc: [raw_log(wc.set, f)
                          for f in replayed_flights(SETS[wc.set], TRAJECTORY_FILES)],
         evaluation=lambda wc: rules.evaluate_held_out.output.evaluation.format(set=wc.set),
         residual=lambda wc: rules.learn_residual.output[0].format(set=wc.set),

@@ -40,6 +40,19 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
     return df
 
 
+def ingest_batch(srcs, vehicle_file, outs, fmt: str = "auto") -> None:
+    """The workflow's ingest job: several raw logs of one set in one process (Python and the readers
+    start once per batch, not once per log), each as :func:`ingest` alone."""
+    import sys
+
+    from ..vehicle import load_vehicle
+
+    vehicle = load_vehicle(vehicle_file)
+    for src, out in zip(srcs, outs, strict=True):
+        df = ingest(src, vehicle, out, fmt=fmt)
+        print(f"{src} -> {out}: {len(df)} rows", file=sys.stderr, flush=True)
+
+
 def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None,
                 align: bool = False, skip_checks=(), frame: str = "enu-flu") -> pd.DataFrame:
     """``qr ingest``: ``out`` checked (qr never replaces a file it did not write) before any work."""

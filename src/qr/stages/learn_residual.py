@@ -516,6 +516,7 @@ class ResidualSweep(SweepCallback):
         import atexit
 
         from .. import tracking
+        from ..atomic import write_text
 
         self._started = time.time()
         out = Path(config.learn.out)
@@ -524,7 +525,7 @@ class ResidualSweep(SweepCallback):
         self._cm = tracking.run("learn", params["sweep"], config=params,
                                 tags={"qr.sweep": params["sweep"], "qr.parent": "true", "qr.kind": "residual"})
         self._run = self._cm.__enter__()
-        (out / PARENT_FILE).write_text(self._run.id + "\n")
+        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
         atexit.register(self._close, RuntimeError("a job of the sweep failed"))
 
     def on_multirun_end(self, config, **kwargs) -> None:
