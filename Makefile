@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed-from-lock
 
-.PHONY: install reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
+.PHONY: install browser reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
 
 # MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see docs/workflow.md)
 MLFLOW_HOST  ?= 127.0.0.1
@@ -22,11 +22,16 @@ $(STAMP): environment.lock pyproject.toml
 
 install: $(STAMP)
 
+# Headless Chromium for the overview's browser test (tests/workflow/test_overview.py): Debian's package, installed
+# only where it is missing (needs root, as CI has).
+browser:
+	@command -v chromium >/dev/null || (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null)
+
 reproduce: install
 	$(VENV)/bin/snakemake --cores 2
 	$(VENV)/bin/snakemake --report results/report.html
 
-test: install
+test: install browser
 	$(VENV)/bin/pytest -n 2 --dist loadgroup
 
 clean-results:
