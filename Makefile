@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed-from-lock
 
-.PHONY: install reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
+.PHONY: install reproduce test report clean-results reproduce-ci readme-results cluster-local mlflow-ui mlflow-server mlflow-screenshot
 
 # MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see docs/workflow.md)
 MLFLOW_HOST  ?= 127.0.0.1
@@ -35,6 +35,11 @@ clean-results:
 # The whole workflow on the reduced config (2 flights per set, small sweeps; what the tests run).
 reproduce-ci: install
 	$(VENV)/bin/snakemake --cores 2 --configfile conf/workflow_ci.yaml
+
+# The README's Results section (between its results markers) from results/ (qr.report.readme); the config that
+# wrote results/ is read from them, or given: make readme-results CONFIG=ci|full|<your name>.
+readme-results: install
+	$(VENV)/bin/python -m qr.report.readme $(if $(CONFIG),--config-name '$(CONFIG)')
 
 # The same through Snakemake's generic-cluster executor with local stand-ins for submit/status/cancel.
 cluster-local: install
