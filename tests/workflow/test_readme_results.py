@@ -237,6 +237,20 @@ def test_a_missing_table_is_refused_and_nothing_is_written(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["README.md", "results"]
 
 
+def test_the_readme_is_short_and_its_results_block_is_the_scripts_output():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 250, "README.md has more than 250 lines"
+    info = rr.parse_block(text)  # starts with the script's header line naming the command
+    assert info["config"] in ("ci", "full"), info
+    assert {f"results/{rel}" for rel in rr.REQUIRED.values()} <= set(info["sources"])
+    assert info["titles"][0] == "What the nominal model gets wrong, per flight set"
+    inner = text[text.index(rr.BEGIN):text.index(rr.END)]
+    assert "make readme-results" in inner.splitlines()[1]
+    # no project history outside docs/: no issue numbers, commit hashes or "before commit"
+    outside = text.replace(inner, "")
+    assert not [w for w in ("issue ", "Issue ", "before commit", "commit ") if w in outside]
+
+
 def test_make_readme_results_runs_the_script():
     r = subprocess.run(["make", "-n", "readme-results", "CONFIG=ci"], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0 and "-m qr.report.readme --config-name 'ci'" in r.stdout
