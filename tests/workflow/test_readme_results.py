@@ -4,6 +4,7 @@ held-out number comes from, replaces only what lies between the markers, gives t
 and refuses a README without markers or a results folder without a table in one line, nothing written."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -134,19 +135,19 @@ def test_the_block_states_the_tables_numbers_with_their_commands_and_splits(tmp_
     assert "| hybrid | 0.6 / 1.2 / 1.8 / 2.4 | – |" in lines
     assert "| hybrid (rollout-trained, carried over) | – | 0.6 / 1.2 / 1.8 / 2.4 |" in lines
     assert not any(ln.startswith(("| hold ", "| rate_frozen ")) for ln in lines)
-    rollout = next(ln for ln in lines if "results/tables/rollout_held_out.csv` → " in ln)
-    assert rollout.startswith("`snakemake --cores 2 --configfile conf/workflow_ci.yaml "
-                              "results/tables/rollout_held_out.csv` → `results/tables/rollout_held_out.csv`.")
+    rollout = next(ln for ln in lines if "→ `results/tables/rollout_held_out.csv`" in ln)
+    assert rollout.startswith("`snakemake --cores 2 results/tables/rollout_held_out.csv --configfile "
+                              "conf/workflow_ci.yaml` → `results/tables/rollout_held_out.csv`.")
     assert "h = 50 steps" in rollout and "interpolation (same trajectories)" in rollout
     # the replay: ratios over the nominal model, and when a model was lost; interpolation said too
     assert "| model | brushless (10 flights) |" in lines
     assert "| hybrid | 0.69 m (7.8×), 47.3° (14×), lost at 1.74 s |" in lines
-    assert "interpolation (same trajectories)" in next(ln for ln in lines if "results/tables/replay.csv` → " in ln)
+    assert "interpolation (same trajectories)" in next(ln for ln in lines if "→ `results/tables/replay.csv`" in ln)
     # learning: the best row that does not leak its target (row 4, not row 14), the best GPR kernel
     assert "| f_a (N) | 0.01 | ANN [v_b, u], 1 × 3 Linear | 0.0025 (25 %) | – |" in lines
     assert "| τ_a (N m) | 6e-05 | ANN [q, u], 1 × 3 Linear | 4.5e-05 (75 %) | – |" in lines
     assert "| f_a (N) | 0.01 | GPR matern52_ard [v_b] | 0.003 (30 %) | 91.5 % |" in lines
-    learn = next(ln for ln in lines if "results/tables/gpr_kernels.csv` → " in ln)
+    learn = next(ln for ln in lines if "`results/tables/gpr_kernels.csv`. `qr learn`" in ln)
     assert "on the brushless flights" in learn and "split `by_flight`" in learn and "interpolation" in learn
     # no published figure beside a number: the thesis columns of the tables are not in the block
     assert "0.563" not in text and "thesis RMSE" not in text
@@ -171,7 +172,7 @@ def test_the_generalisation_table_comes_first_among_the_rollouts_titled_with_wha
     assert ("| brushless: time scale 0.5 (`trajectory`) | 2.1 / 2.4 / 3.5 / 5.5 (81 %) | 0.92 / 0.89 / 0.92 / "
             "0.82 (90 %) |") in lines
     assert "| brushless: every third flight (`repeat`) | – | 0.15 / 0.11 / 0.11 / 0.22 |" in lines
-    line = next(ln for ln in lines if "results/tables/generalization.csv` → " in ln)
+    line = next(ln for ln in lines if "→ `results/tables/generalization.csv`" in ln)
     assert "`trajectory`: whole trajectory types or time scales held out" in line
     assert "`repeat`: every third flight" in line and "interpolation (same trajectories)" in line
 
@@ -249,6 +250,18 @@ def test_the_readme_is_short_and_its_results_block_is_the_scripts_output():
     # no project history outside docs/: no issue numbers, commit hashes or "before commit"
     outside = text.replace(inner, "")
     assert not [w for w in ("issue ", "Issue ", "before commit", "commit ") if w in outside]
+
+
+def test_the_commands_the_readme_block_prints_are_valid_snakemake_invocations():
+    """Each table's command, run as printed (a dry run): the targets before --configfile, which would take
+    them for config files."""
+    text = (ROOT / "README.md").read_text()
+    commands = set(re.findall(r"^`(snakemake [^`]+)` → ", text[text.index(rr.BEGIN):text.index(rr.END)], re.M))
+    assert len(commands) == 5, commands
+    learn = next(c for c in commands if "gpr_kernels.csv" in c).split()
+    r = subprocess.run([str(ROOT / ".venv" / "bin" / "snakemake"), "-n", "--nolock", *learn[1:]], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr[-2000:]
 
 
 def test_make_readme_results_runs_the_script():

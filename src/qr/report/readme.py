@@ -54,17 +54,19 @@ class Config:
 
     name: str  # "ci", "full" or the user's text
     label: str  # the header's words
-    snakemake: str  # the command that (re)writes one table
+    snakemake: str  # the command that (re)writes tables: {targets} stands for their paths
 
-    def command(self, target: str) -> str:
-        return f"{self.snakemake} {target}"
+    def command(self, targets: str) -> str:
+        return self.snakemake.format(targets=targets)
 
 
+# (the targets go before --configfile, which takes every word after it as a config file)
 CONFIGS = {
     "ci": Config("ci", "the reduced CI workflow (`make reproduce-ci`, `conf/workflow_ci.yaml`: a few flights per "
                        "set, small sweeps, one training epoch): a check that every stage runs, not the project's "
-                       "figures", "snakemake --cores 2 --configfile conf/workflow_ci.yaml"),
-    "full": Config("full", "the full workflow (`make reproduce`, `conf/workflow.yaml`)", "snakemake --cores 2"),
+                       "figures", "snakemake --cores 2 {targets} --configfile conf/workflow_ci.yaml"),
+    "full": Config("full", "the full workflow (`make reproduce`, `conf/workflow.yaml`)",
+                   "snakemake --cores 2 {targets}"),
 }
 
 
@@ -127,7 +129,7 @@ def detect_config(results: Path, ci_file: Path, diagnosis: pd.DataFrame) -> Conf
 
 def config_of(name: str | None, results: Path, ci_file: Path, diagnosis: pd.DataFrame) -> Config:
     if name:
-        return CONFIGS.get(name) or Config(name, f"`{name}`", "snakemake --cores 2 <your options>")
+        return CONFIGS.get(name) or Config(name, f"`{name}`", "snakemake --cores 2 {targets} <your options>")
     found = detect_config(results, ci_file, diagnosis)
     if found is None:
         raise ReadmeError(results, "cannot tell from the results which workflow config wrote them",
