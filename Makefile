@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 STAMP  := $(VENV)/.installed-from-lock
 
-.PHONY: install reproduce test report clean-results reproduce-ci readme-results cluster-local mlflow-ui mlflow-server mlflow-screenshot
+.PHONY: install reproduce test report clean-results reproduce-ci cluster-local mlflow-ui mlflow-server mlflow-screenshot
 
 # MLflow UI / server: local by default (127.0.0.1); MLFLOW_HOST=0.0.0.0 shares it (see docs/workflow.md)
 MLFLOW_HOST  ?= 127.0.0.1
@@ -38,6 +38,7 @@ reproduce-ci: install
 
 # The README's Results section (between its results markers) from results/ (qr.report.readme); the config that
 # wrote results/ is read from them, or given: make readme-results CONFIG=ci|full|<your name>.
+.PHONY: readme-results
 readme-results: install
 	$(VENV)/bin/python -m qr.report.readme $(if $(CONFIG),--config-name '$(CONFIG)')
 
