@@ -41,6 +41,12 @@ clean-results:
 reproduce-ci: install
 	$(VENV)/bin/snakemake --cores 2 --configfile conf/workflow_ci.yaml
 
+# The README's Results section (between its results markers) from results/ (qr.report.readme); the config that
+# wrote results/ is read from them, or given: make readme-results CONFIG=ci|full|<your name>.
+.PHONY: readme-results
+readme-results: install
+	$(VENV)/bin/python -m qr.report.readme $(if $(CONFIG),--config-name '$(CONFIG)')
+
 # The same through Snakemake's generic-cluster executor with local stand-ins for submit/status/cancel.
 cluster-local: install
 	$(VENV)/bin/snakemake --profile profiles/local-cluster --configfile conf/workflow_ci.yaml

@@ -96,17 +96,47 @@ def test_only_the_stages_and_their_helpers_import_the_stages():
         assert not {d for d in deps if d.startswith("qr.stages")}, f"{name} imports a stage"
 
 
-def test_the_code_map_names_every_module():
-    readme = (ROOT / "README.md").read_text()
-    code_map = readme[readme.index("## Code map"):]
-    code_map = code_map[:code_map.index("```", code_map.index("```") + 3)]
+def _code_map() -> str:
+    """The module map of docs/code-map.md: its first fenced block."""
+    text = (ROOT / "docs" / "code-map.md").read_text()
+    start = text.index("```")
+    return text[start:text.index("```", start + 3) + 3]
+
+
+def _unnamed(code_map: str) -> list[str]:
+    """The modules of src/qr (package markers and the stages' folder aside) that ``code_map`` does not name."""
     missing = []
-    for p in SRC.rglob("*.py"):
+    for p in sorted(SRC.rglob("*.py")):
         if p.name in ("__init__.py", "__main__.py") or p.parent.name == "stages":
             continue
         if not re.search(rf"(?<![\w/]){re.escape(p.stem)}(\.py)?\b", code_map):
             missing.append(str(p.relative_to(SRC)))
-    assert not missing, f"the README's code map does not name {missing}"
+    return missing
+
+
+def test_the_code_map_names_every_module():
+    missing = _unnamed(_code_map())
+    assert not missing, f"docs/code-map.md's module map does not name {missing}"
+
+
+def test_the_code_map_check_finds_a_module_left_out():
+    """The check above can fail: the map with one module's name removed is caught, naming that module."""
+    code_map = _code_map()
+    assert "rollout_torch.py" in code_map and "background.py" in code_map
+    assert _unnamed(code_map.replace("rollout_torch.py", "")) == ["rollout_torch.py"]
+    assert _unnamed(code_map.replace("background.py", "")) == ["report/background.py"]
+
+
+def test_the_readme_code_map_names_every_package_and_links_the_full_map():
+    """The README keeps a short map (docs/spec/layout.md's picture): every package of src/qr by its folder,
+    and the link to the per-module map."""
+    readme = (ROOT / "README.md").read_text()
+    section = readme[readme.index("## Code map"):]
+    section = section[:section.index("\n## ", 3)] if "\n## " in section[3:] else section
+    assert "docs/code-map.md" in section
+    packages = sorted(p.parent.name for p in SRC.glob("*/__init__.py") if p.parent.name != "stages")
+    missing = [f"{name}/" for name in packages if f"{name}/" not in section]
+    assert not missing, f"the README's code map does not name the packages {missing}"
 
 
 # ---- the stages: no stage imports another; only they track ------------------------------------
