@@ -52,8 +52,8 @@ import numpy as np
 from ..effects import CATALOG, plausible_bounds
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
-from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, Windows, score_plant, summary, pool, at
-from ..sim.plant import P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
+from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, Windows, roll_window, score_plant, summary, pool, at
+from ..sim.plant import P_DELAY, P_MARKER, true_params
 
 # the vehicle's own coefficients as catalog effects (their neutral value: the vehicle file's)
 COEFFICIENTS = ("inertia_error", "thrust_gain", "yaw_torque_gain", "actuator_delay")
@@ -197,41 +197,35 @@ class Refinement:
 # ---- the compiled rollout: residuals, and the normal equations of their Jacobian -------------------
 
 @nb.njit(cache=True)
-def _window(t, X0, U, i, H, P, tp, tq, tv, tw, out, k, xs, xn, x):
-    """The error vectors (H, 12) of the window starting at ``i`` (NaN rows where the truth is missing);
-    False if the rollout diverged."""
+def _window(t, X0, U, i, H, P, tp, tq, tv, tw, out, k, xs, xn, x, states):
+    """The error vectors (H, 12) of the window starting at ``i`` (zero rows where the truth is missing), by
+    the evaluate protocol's own rollout (:func:`qr.rollout.roll_window`: a diverged rollout's last sane state
+    stands for the rest of the window, as ``qr evaluate`` scores it); True if it diverged."""
     r = P[P_MARKER:P_MARKER + 3].copy()
-    zero = np.zeros(3)
-    x[:] = X0[i]
-    cg_from_tracked(x, r)
+    _, diverged = roll_window(t, X0, U, i, H, P, MODEL, r, states, k, xs, xn, x)
     for h in range(1, H + 1):
         j = i + h
-        u = U[j - 1]
-        rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], False, zero, k, xs, xn)
-        for m in range(13):
-            x[m] = xn[m]
-        if not (abs(x[3]) + abs(x[4]) + abs(x[5]) < 1e3) or not math.isfinite(x[6]):
-            return False
-        px, py, pz, vx, vy, vz = tracked_pv(x, r)
+        y = states[h - 1]
         row = out[h - 1]
         for m in range(12):
             row[m] = 0.0
         if math.isfinite(tp[j, 0]):
-            row[0], row[1], row[2] = px - tp[j, 0], py - tp[j, 1], pz - tp[j, 2]
+            row[0], row[1], row[2] = y[0] - tp[j, 0], y[1] - tp[j, 1], y[2] - tp[j, 2]
         if math.isfinite(tv[j, 0]):
-            row[3], row[4], row[5] = vx - tv[j, 0], vy - tv[j, 1], vz - tv[j, 2]
+            row[3], row[4], row[5] = y[3] - tv[j, 0], y[4] - tv[j, 1], y[5] - tv[j, 2]
         if math.isfinite(tq[j, 0]):
-            w, a, b, c = qmul_s(tq[j, 0], -tq[j, 1], -tq[j, 2], -tq[j, 3], x[6], x[7], x[8], x[9])
+            w, a, b, c = qmul_s(tq[j, 0], -tq[j, 1], -tq[j, 2], -tq[j, 3], y[6], y[7], y[8], y[9])
             s = 2.0 if w >= 0 else -2.0
             row[6], row[7], row[8] = s * a, s * b, s * c
         if math.isfinite(tw[j, 0]):
-            row[9], row[10], row[11] = x[10] - tw[j, 0], x[11] - tw[j, 1], x[12] - tw[j, 2]
-    return True
+            row[9], row[10], row[11] = y[10] - tw[j, 0], y[11] - tw[j, 1], y[12] - tw[j, 2]
+    return diverged
 
 
 @nb.njit(cache=True, nogil=True)
 def _normal(t, X0, Us, starts, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix, dtheta, weight, A, Ad, g, gw, out):
-    """Windows ``lo … hi−1``: ``out`` = [cost, windows dropped (diverged)]; with variants (``Ps[1 + k]``:
+    """Windows ``lo … hi−1``: ``out`` = [cost, windows whose rollout diverged (scored as the protocol scores
+    them)]; with variants (``Ps[1 + k]``:
     parameter k moved by ``dtheta[k]``, forward differences) the Gauss–Newton ``A += JᵀWJ`` (lower
     triangle), ``g += JᵀWe`` and each window's own gradient in ``gw`` (its row).  ``Us[uix[v]]`` are the inputs of variant v (a
     delay moves them); ``starts``: the windows' first rows in the stacked arrays.
@@ -250,23 +244,21 @@ def _normal(t, X0, Us, starts, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix, dtheta, 
     Jw = np.empty((H * 12, p))
     Jd = np.zeros((H * 12, p))
     k4, xs, xn, x = np.empty((4, 13)), np.empty(13), np.empty(13), np.empty(13)
+    states = np.empty((H, 13))
     for w_i in range(lo, hi):
         i = starts[w_i]
-        ok = True
+        # every window counts in every pass (the cost's and each variant's): a diverged rollout is scored
+        # as the protocol scores it, so a step that makes windows diverge is no cheaper
+        if _window(t, X0, Us[uix[0]], i, H, Ps[0], tp, tq, tv, tw, E[0], k4, xs, xn, x, states):
+            out[1] += 1.0
         for v in range(K):
-            if not _window(t, X0, Us[uix[v]], i, H, Ps[v], tp, tq, tv, tw, E[v], k4, xs, xn, x):
-                ok = False
-                break
+            if v > 0:
+                _window(t, X0, Us[uix[v]], i, H, Ps[v], tp, tq, tv, tw, E[v], k4, xs, xn, x, states)
             if corr:
-                if not _window(t, X0, Us[nix[v]], i, H, Ps[v], tp, tq, tv, tw, D[v], k4, xs, xn, x):
-                    ok = False
-                    break
+                _window(t, X0, Us[nix[v]], i, H, Ps[v], tp, tq, tv, tw, D[v], k4, xs, xn, x, states)
                 for h in range(H):
                     for m in range(12):
                         D[v, h, m] -= E[v, h, m]
-        if not ok:
-            out[1] += 1.0
-            continue
         for h in range(H):
             for m in range(12):
                 e = E[0, h, m]
@@ -553,11 +545,11 @@ def _median_dt(pieces: list[Windows]) -> float:
 
 
 def _weights(train: list[Windows], vehicle, H: int) -> np.ndarray:
-    """1 / ref_s² per signal: rate_frozen's mean error over h on the training windows."""
-    P = true_params(vehicle, residual=False)
-    s, c = pool([{"rf": score_plant(w, H, P, RATE_FROZEN)} for w in train])["rf"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ref = np.nanmean(s / c, axis=0)
+    """1 / ref_s² per signal: rate_frozen's mean error over h on the training windows
+    (:func:`qr.rollout.reference_mae`; 1 where a signal has no truth)."""
+    from ..rollout import reference_mae
+
+    ref = reference_mae(train, vehicle, H)
     ref = np.where(np.isfinite(ref) & (ref > 0), ref, 1.0)
     return 1.0 / ref**2
 
