@@ -187,6 +187,8 @@ class Refinement:
     ablation: tuple = ()  # Ablation rows: what each refined term removes of the rollout error at H
     diverged: int = 0  # training windows whose rollout (of the written model) diverged, scored as the protocol does
     admission: dict = field(default_factory=dict)  # extra term → (held-out loss without, with, admitted)
+    balance_ref: np.ndarray | None = None  # the one-step model's force and torque balance rms per axis
+    balance: np.ndarray | None = None  # the written model's balance residual per axis over the one-step model's
 
     def properties(self) -> dict:
         """The vehicle keys refined (only those that moved): ``rotor_inertia``, ``rotor_torque_gains``,
@@ -251,6 +253,10 @@ class Refinement:
                                    "held_out_mae_at_H": list(a.held_out) if a.held_out else None}
                                   for a in self.ablation]},
             "diverged_windows": self.diverged,
+            "balance": None if self.balance is None else {
+                "tolerance": BALANCE_TOL, "axes": ["fx", "fy", "fz", "tx", "ty", "tz"],
+                "one_step_rms": [float(x) for x in self.balance_ref],
+                "written_over_one_step": [float(x) for x in self.balance]},
             "admission": {g: {"held_out_loss_without": a, "held_out_loss_with": b, "admitted": ok}
                           for g, (a, b, ok) in self.admission.items() if not g.startswith("beyond")},
             "beyond_range": ({"held_out_loss_held": self.admission["beyond: hold or bound"][0],
@@ -731,9 +737,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     theta0 = np.array([s.start for s in specs])
     log(f"refining {len(specs)} parameters on {len(stack.starts)} training windows of {H} steps")
     free, wanted, iters, stopped, admission = _admit(fit, specs, theta0, held_out, vehicle, H, weight, settings, log)
-    cov = fit.covariance(wanted, free)
-    se = fit.stderr(wanted, cov)
-    directions, pin = _unconstrained(fit, specs, cov)
+    se = fit.stderr(wanted, fit.covariance(wanted, free))
     params = []
     for k, s in enumerate(specs):
         hit = "lower" if wanted[k] <= s.lo + 1e-9 * s.scale else ("upper" if wanted[k] >= s.hi - 1e-9 * s.scale
@@ -744,12 +748,17 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
                                 bool(free[k])))
     beyond = np.array([not p.in_range or (p.bound_hit is not None and p.rollout != p.one_step) for p in params])
     beyond &= free
+    # the written model keeps the force and torque balance (every axis within 1 + BALANCE_TOL of the one-step
+    # model's): the fit starts from the one-step model and shortens any step that would break it
+    limits = _balance_check(balance, vehicle, specs, theta0) if balance is not None else None
+    # the directions the data cannot fix around the one-step model (where the written fit starts): reported, and
+    # held at their one-step values in the written fit
+    directions, pin = _unconstrained(fit, specs, fit.covariance(theta0, free))
     rules = ("hold", "bound") if settings.beyond == "auto" and beyond.any() else \
         ("hold" if settings.beyond == "auto" else settings.beyond,)
-    wfit = fit.with_balance(balance, theta0, BALANCE_TOL) if balance is not None else fit
     candidates = {}
     for rule in rules:
-        candidates[rule] = _written(wfit, specs, params, theta0, wanted, free, beyond, pin, rule, settings, log)
+        candidates[rule] = _written(fit, specs, params, theta0, wanted, free, beyond, pin, rule, settings, log, limits)
         iters += candidates[rule][1]
     rule = rules[0]
     if len(rules) > 1:  # chosen on the held-out windows (the diagnosis's held-out part of the same flights)
@@ -759,8 +768,10 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
         admission["beyond: hold or bound"] = (losses.get("hold"), losses.get("bound"), rule == "bound")
     written, _, stopped2 = candidates[rule]
     if stopped2:
-        stopped = f"{stopped}; the written model ({'held at one-step values' if rule == 'hold' else 'at the range ends'}" \
-                  f" where wanted beyond): {stopped2}"
+        stopped = f"{stopped}; the written model: {stopped2}"
+    balance_after = None
+    if balance is not None:  # jointly too: back towards the one-step model until every axis keeps its balance
+        written, balance_after = _within_balance(balance, vehicle, specs, theta0, written)
     if fit.cost(written) >= fit.cost(theta0):  # no better than the one-step model on the training windows
         written = theta0
         stopped += "; the written model is the one-step one (what the refinement may write does not lower the loss)"
@@ -773,22 +784,52 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     diverged = fit.normal(written, [])[5]
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
-                      time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission)
+                      time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission,
+                      None if limits is None else limits[1], balance_after)
 
 
-def _written(fit: "_Fit", specs, params, theta0, wanted, free, beyond, pin, rule: str, settings, log) -> tuple:
-    """``(theta, iterations, stopped)``: the model written, a second fit within the physical ranges.  A
-    parameter not admitted stays at its one-step value; so does a named effect's the rollout wants beyond
-    its standard errors from the one-step estimate, and one wanted beyond its physical range with ``rule``
-    "hold" (with "bound": it is fitted again within its range, so it may end at the range's end); the
-    directions the data cannot fix stay at their one-step values (``pin``)."""
+def _balance_check(balance: "Balance", vehicle, specs: list[_Spec], theta0) -> tuple:
+    """``(ratios, ref)``: a parameter vector's force and torque balance residual per axis over the one-step
+    model's (``ref``, per axis); the written model keeps every ratio within ``1 + BALANCE_TOL``."""
+    ref = balance.rms(_plant(vehicle, specs, theta0))
+    ref = np.where(ref > 0, ref, 1.0)
+    return (lambda th: balance.rms(_plant(vehicle, specs, th)) / ref), ref
+
+
+def _within_balance(balance: "Balance", vehicle, specs, theta0, theta) -> tuple:
+    """``(theta, rms ratio per axis)``: the written model, moved back along the line to the one-step model
+    (bisection, 12 halvings) until no axis's balance residual exceeds ``1 + BALANCE_TOL`` times the one-step
+    model's."""
+    ref = balance.rms(_plant(vehicle, specs, theta0))
+    ref = np.where(ref > 0, ref, 1.0)
+    ratio = lambda th: balance.rms(_plant(vehicle, specs, th)) / ref  # noqa: E731
+    q = ratio(theta)
+    if q.max() <= 1.0 + BALANCE_TOL:
+        return theta, q
+    a, b = 0.0, 1.0
+    for _ in range(12):
+        m = 0.5 * (a + b)
+        if ratio(theta0 + m * (theta - theta0)).max() <= 1.0 + BALANCE_TOL:
+            a = m
+        else:
+            b = m
+    out = theta0 + a * (theta - theta0)
+    return out, ratio(out)
+
+
+def _written(fit: "_Fit", specs, params, theta0, wanted, free, beyond, pin, rule: str, settings, log,
+             limits=None) -> tuple:
+    """``(theta, iterations, stopped)``: the model written, a second fit within the physical ranges, from the
+    one-step model and keeping the force and torque balance where ``limits`` (:func:`_balance_check`) is
+    given, else from what the rollout wants.  A parameter not admitted stays at its one-step value; so does a
+    named effect's the rollout wants beyond its standard errors from the one-step estimate, and one wanted
+    beyond its physical range with ``rule`` "hold" (with "bound": it is fitted again within its range, so it
+    may end at the range's end); the directions the data cannot fix stay at their one-step values (``pin``)."""
     disagree = np.array([p.named and p.disagree for p in params])
     held = disagree | ~free | (beyond if rule == "hold" else False)
     lo = np.array([s.phys_lo for s in specs])
     hi = np.array([s.phys_hi for s in specs])
-    # with the balance, from the one-step model (which keeps it) towards what the rollout wants
-    start = theta0.copy() if fit.bal is not None else np.where(held, theta0, wanted)
-    if fit.bal is None and not ((held & free).any() or beyond.any() or pin is not None):
+    if limits is None and not ((held & free).any() or beyond.any() or pin is not None):
         return wanted, 0, ""
     if (held & free).any():
         log(f"held at the one-step value in the written model ({rule}): "
@@ -796,10 +837,14 @@ def _written(fit: "_Fit", specs, params, theta0, wanted, free, beyond, pin, rule
     # a held one stays at its one-step value, even where the diagnosis named it outside the range (said in the
     # report; the refinement does not move it)
     phys = (np.where(held, np.minimum(theta0, lo), lo), np.where(held, np.maximum(theta0, hi), hi))
-    start = np.clip(start, *phys)
-    if pin is not None:  # start on the pinned directions' one-step values
-        start = np.clip(_project_out(start, theta0, pin, fit.scale), *phys)
-    return fit.minimise(start, ~held, settings.iterations, bounds=phys, pin=None if pin is None else (pin, theta0))
+    if limits is not None:
+        start = theta0.copy()
+    else:
+        start = np.clip(np.where(held, theta0, wanted), *phys)
+        if pin is not None:  # start on the pinned directions' one-step values
+            start = np.clip(_project_out(start, theta0, pin, fit.scale), *phys)
+    return fit.minimise(start, ~held, settings.iterations, bounds=phys, pin=None if pin is None else (pin, theta0),
+                        constraint=None if limits is None else (limits[0], 1.0 + BALANCE_TOL))
 
 
 # The terms a rollout most easily bends into compensation for what the model lacks (per-rotor gains, the CG,
@@ -812,7 +857,6 @@ ADMIT_GAIN = 0.02
 # can into a low-pass on torques the model lacks: J x 7, per-rotor gains traded against the CG; the
 # balance, measured sample by sample, tells such values from physical ones)
 BALANCE_TOL = 0.05
-BALANCE_WEIGHT = 1e3  # the penalty's weight beyond it, in units of the one-step model's loss
 
 
 def _admit(fit: "_Fit", specs: list[_Spec], theta0, held_out: list[Windows], vehicle, H: int, weight, settings,
@@ -1039,54 +1083,23 @@ class _Fit:
         sym = lambda M: np.tril(M) + np.tril(M, -1).T  # noqa: E731
         return float(out[0]), sym(A), sym(Ad), g, gw, int(out[1])
 
-    bal = None  # (Balance, its one-step RMS per axis, the tolerance, the penalty's weight): with_balance
-
-    def with_balance(self, balance: "Balance", theta0: np.ndarray, tol: float) -> "_Fit":
-        """This loss plus a penalty wherever an axis's force or torque balance residual exceeds ``1 + tol``
-        times the one-step model's (``theta0``): ``ρ Σ max(0, rms/rms0 − 1 − tol)²``, ρ = BALANCE_WEIGHT × the
-        loss at ``theta0``."""
-        import copy
-
-        out = copy.copy(self)
-        ref = balance.rms(_plant(self.vehicle, self.specs, theta0))
-        out.bal = (balance, np.where(ref > 0, ref, 1.0), tol, BALANCE_WEIGHT * self._run(self._plants(theta0)[0],
-                                                                                           np.zeros(0))[0])
-        return out
-
-    def _excess(self, Ps) -> np.ndarray:
-        """(K, 6): each plant's balance residual per axis over the one-step model's, less 1 + tol."""
-        b, ref, tol, _ = self.bal
-        return np.array([b.rms(P) / ref for P in Ps]) - 1.0 - tol
-
     def cost(self, theta) -> float:
         Ps, _ = self._plants(theta)
-        c = self._run(Ps, np.zeros(0))[0]
-        if self.bal is not None:
-            c += self.bal[3] * float((np.maximum(self._excess(Ps[:1])[0], 0.0) ** 2).sum())
-        return c
+        return self._run(Ps, np.zeros(0))[0]
 
     def normal(self, theta, moved):
         Ps, steps = self._plants(theta, moved)
-        out = self._run(Ps, steps)
-        if self.bal is None:
-            return out
-        cost, A, Ad, g, gw, div = out
-        e = self._excess(Ps)
-        h = np.maximum(e[0], 0.0)
-        rho = self.bal[3]
-        cost += rho * float((h * h).sum())
-        if len(steps):
-            D = (e[1:] - e[0]) / np.asarray(steps)[:, None]  # (p, 6): d excess / d z
-            act = (h > 0).astype(float)
-            A = A + 2 * rho * (D * act) @ D.T
-            g = g + 2 * rho * D @ h
-        return cost, A, Ad, g, gw, div
+        return self._run(Ps, steps)
 
-    def minimise(self, theta0, free, iterations, bounds=None, pin=None):
+    def minimise(self, theta0, free, iterations, bounds=None, pin=None, constraint=None):
         """Levenberg–Marquardt on the ``free`` parameters, each step solved within the bounds (the plausible
         ones, or ``bounds``); stops when the loss falls by less than 1e-5 of itself (far below its sampling
         noise).  ``pin``: ``(Q, theta_pin)``, a quadratic penalty ``½ (z − z_pin)ᵀ Q (z − z_pin)`` in the scaled
-        parameters z = θ / scale (all of them): the unconstrained directions held at their one-step values."""
+        parameters z = θ / scale (all of them): the unconstrained directions held at their one-step values.
+        ``constraint``: ``(c, limit)``, ``c(θ)`` a vector every iterate keeps at or below ``limit`` (from a start
+        that keeps it): a trial step that breaks it is projected onto the tangent plane of the components it
+        breaks (their finite-difference gradients at the current point), then shortened (halved, up to 10
+        times) until it keeps it."""
         from ..identification.box_qp import box_qp
 
         blo, bhi = bounds if bounds is not None else (self.lo, self.hi)
@@ -1108,10 +1121,36 @@ class _Fit:
                 H, g = H + Q, g + Q @ (z - zp)
             D = np.maximum(np.diag(H), 1e-12 * max(np.diag(H).max(), 1e-300))
             new = cost
+            grad = None  # the constraint's gradient at theta (in z), computed when first needed
             for _ in range(10):
                 dz = box_qp(H + mu * np.diag(D), -g, lo - z, hi - z)
                 trial = theta.copy()
                 trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
+                if constraint is not None:
+                    c_fn, limit = constraint
+                    ct = c_fn(trial)
+                    if (ct > limit).any():
+                        if grad is None:
+                            c0 = c_fn(theta)
+                            grad = np.empty((len(c0), idx.size))
+                            for j, k in enumerate(idx):
+                                th = theta.copy()
+                                h = FD_STEP * sc[j] if theta[k] + FD_STEP * sc[j] <= bhi[k] else -FD_STEP * sc[j]
+                                th[k] += h
+                                grad[:, j] = (c_fn(th) - c0) / (h / sc[j])
+                        G = grad[ct > limit]  # keep the broken components where they are (first order)
+                        M = np.ascontiguousarray(G @ G.T + 1e-12 * np.trace(G @ G.T) * np.eye(len(G)))
+                        y, Lm = np.empty((len(G), 1)), np.empty_like(M)
+                        if cholesky_solve(M, np.ascontiguousarray((G @ dz)[:, None]), Lm, y):
+                            dz = dz - G.T @ y[:, 0]
+                        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
+                    for _ in range(10):
+                        if (c_fn(trial) <= limit).all():
+                            break
+                        dz = 0.5 * dz
+                        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
+                    else:
+                        trial = theta.copy()
                 new = self.cost(trial) + penalty(trial[idx] / sc)
                 if new < cost:
                     theta = trial
