@@ -160,6 +160,30 @@ def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list
     return "\n".join(lines) + "\n"
 
 
+def _rotor_property_rows(vehicle, pp: Plant) -> list[Row]:
+    """The rotor and airframe properties the catalog lacks (``qr.vehicle.ROTOR_PROPERTIES``), where the file
+    gives them: no simulator element of the three holds them; their size at hover and 1 rad/s or 1 m/s."""
+    rows = []
+    if vehicle.rotor_inertia:
+        h = vehicle.rotor_inertia * pp.hover
+        rows.append(Row("rotor_inertia", g(vehicle.rotor_inertia) + " kg m²", "-", "-", IMPOSSIBLE,
+                        f"the rotors' gyroscopic moment and speed-change reaction: left out (one rotor's momentum at "
+                        f"hover {g(h)} N m s: a moment of that size per rad/s of body rate where the rotors' "
+                        "momenta do not cancel)"))
+    gains = vehicle.rotor_torque_gains
+    if np.any(gains != 1.0):
+        rows.append(Row("rotor_torque_gains", ", ".join(g(x) for x in gains), "-", "-", APPROXIMATE,
+                        "each rotor's C_Q: the export uses the file's torque_coeff (× yaw_torque_gain) for every "
+                        f"rotor; the yaw torques differ by up to {100 * float(np.max(np.abs(gains - 1))):.3g} %"))
+    if vehicle.flapping_pitch_ratio != 1.0:
+        k = float(pp.P[pl.P_FLAP])
+        rows.append(Row("flapping_pitch_ratio", g(vehicle.flapping_pitch_ratio), "-", "-", IMPOSSIBLE,
+                        f"the pitch flapping coefficient over the roll one: left out (pitch moment "
+                        f"{g(abs(k * (vehicle.flapping_pitch_ratio - 1)) * V_REF)} N m at {g(V_REF)} m/s beyond "
+                        "blade_flapping's)" if k else "no blade flapping named: no effect"))
+    return rows
+
+
 def common_rows(vehicle, pp: Plant, keys: dict[str, tuple[str, str]]) -> list[Row]:
     """Rows every simulator has in the same way: mass, inertia, C_T, C_Q, rotor speed unit.
 
@@ -172,6 +196,7 @@ def common_rows(vehicle, pp: Plant, keys: dict[str, tuple[str, str]]) -> list[Ro
         extra.append(Row("command_map", "a + b c + k c² N", "-", "-", IMPOSSIBLE,
                          "the simulators take rotor speeds: give them qr's equivalent speeds u = sqrt(F / C_T) "
                          "(qr ingest's), not the motor commands"))
+    extra += _rotor_property_rows(vehicle, pp)
     return extra + [
         Row("rotor_speed_unit", u, "-", "rad/s", EXACT, f"ω [rad/s] = {g(f)} u [{u}] ({conv})"),
         Row("mass", g(vehicle.mass) + " kg", *keys["mass"], EXACT,
