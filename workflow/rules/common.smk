@@ -1,5 +1,6 @@
 # Shared definitions: configuration, data sets, path helpers.
 import os
+import re
 from pathlib import Path
 
 import yaml
@@ -49,9 +50,29 @@ if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the 
         _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
 
 
-def raw_log(wildcards):
-    s = SETS[wildcards.set]
-    return str(DATA_ROOT / s.get("dir", "") / (wildcards.flight + s.get("suffix", "")))
+def raw_log(set_name, flight):
+    s = SETS[set_name]
+    return str(DATA_ROOT / s.get("dir", "") / (flight + s.get("suffix", "")))
+
+
+FLIGHTS_PER_JOB = int(config["flights_per_job"])  # conf/workflow.yaml
+
+
+def batches(set_name):
+    """The set's flights in consecutive batches of at most `flights_per_job`, as equal as can be: one
+    ingest and one filter job each (rules ingest_<set>_<k>, filter_<set>_<k>), so a job's Python,
+    imports and compiled kernels start once per batch, not once per flight; several batches per set keep
+    both cores busy."""
+    flights = SETS[set_name]["flights"]
+    n = len(flights)
+    k = -(-n // FLIGHTS_PER_JOB)
+    return [flights[i * n // k:(i + 1) * n // k] for i in range(k)]
+
+
+def batch_rule(stage, set_name, k):
+    """The name of the rule of a set's k-th batch (a rule name is an identifier)."""
+    name = re.sub(r"\W", "_", set_name)
+    return f"{stage}_{name}_{k}"
 
 
 def shipped_vehicle(name):

@@ -9,9 +9,9 @@ EVAL = config.get("evaluate", {})
 
 rule evaluate_held_out:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
     output:
         diagnosis=directory("results/evaluation/{set}/training_diagnosis"),
@@ -36,9 +36,9 @@ rule evaluate_held_out:
 # same held-out flights.
 rule evaluate_learned:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
         residual=lambda wc: rules.learn_residual.output[0].format(set=wc.set),
         carried=lambda wc: f"results/learn/carried/{wc.set}" if wc.set == RESIDUAL_CARRY else [],
