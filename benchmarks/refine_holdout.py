@@ -53,6 +53,7 @@ def main():
     nis = lambda n: json.loads((res / "filter" / a.set / f"{n}.nis.json").read_text())  # noqa: E731
     est = lambda n: str(res / "filter" / a.set / f"{n}.crossfit.parquet")  # noqa: E731
     out = Path(a.keep or tempfile.mkdtemp(prefix="qr-refine-holdout-"))
+    out.mkdir(parents=True, exist_ok=True)  # qr writes into an existing folder only
     print(f"{a.set}: training on {len(a.train)} flights, scoring {len(a.score)}", flush=True)
     t0 = time.perf_counter()
     doc = run_diagnosis([flight(n) for n in a.train], a.vehicle, out / "diag", OVERRIDES + a.extra, track=False,
