@@ -53,3 +53,55 @@ def cholesky_solve(A, B, L, X):
         for c in range(m):
             X[i, c] /= L[i, i]
     return True
+
+
+@nb.njit(cache=True)
+def symmetric_eigen(A, w, V, sweeps=100, tol=1e-15):
+    """Eigenvalues ``w`` (ascending) and eigenvectors (columns of ``V``) of the symmetric ``A`` by cyclic
+    Jacobi rotations in a fixed order: the same digits under any BLAS kernel or thread count (the
+    refinement decides from them which parameter directions the data fix).  ``A`` is not changed."""
+    n = A.shape[0]
+    M = A.copy()
+    for i in range(n):
+        for j in range(n):
+            V[i, j] = 1.0 if i == j else 0.0
+    scale = 0.0
+    for i in range(n):
+        for j in range(n):
+            scale += M[i, j] * M[i, j]
+    for _ in range(sweeps):
+        off = 0.0
+        for p in range(n):
+            for q in range(p + 1, n):
+                off += M[p, q] * M[p, q]
+        if off <= tol * tol * scale:
+            break
+        for p in range(n):
+            for q in range(p + 1, n):
+                if M[p, q] == 0.0:
+                    continue
+                theta = (M[q, q] - M[p, p]) / (2.0 * M[p, q])
+                t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(n):  # columns p, q
+                    mkp, mkq = M[k, p], M[k, q]
+                    M[k, p] = c * mkp - s * mkq
+                    M[k, q] = s * mkp + c * mkq
+                for k in range(n):  # rows p, q
+                    mpk, mqk = M[p, k], M[q, k]
+                    M[p, k] = c * mpk - s * mqk
+                    M[q, k] = s * mpk + c * mqk
+                for k in range(n):
+                    vkp, vkq = V[k, p], V[k, q]
+                    V[k, p] = c * vkp - s * vkq
+                    V[k, q] = s * vkp + c * vkq
+    for i in range(n):
+        w[i] = M[i, i]
+    for i in range(1, n):  # ascending (insertion sort, columns along)
+        j = i
+        while j > 0 and w[j - 1] > w[j]:
+            w[j - 1], w[j] = w[j], w[j - 1]
+            for k in range(n):
+                V[k, j - 1], V[k, j] = V[k, j], V[k, j - 1]
+            j -= 1

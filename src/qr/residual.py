@@ -85,6 +85,17 @@ def features(inputs, v_b, omega, g_b, u, rotor_speed_scale: float) -> np.ndarray
     return np.column_stack([np.asarray(parts[g], float) for g in ordered(inputs)])
 
 
+def forward(res: Residual, phi: np.ndarray) -> np.ndarray:
+    """The wrench (N, 6) for features ``φ`` (N, d) in NumPy: its recorded size (:func:`rms_size`) and the
+    export's statement of it at hover (qr.export.mapping)."""
+    z = (np.atleast_2d(phi) - res.input_mean) / res.input_scale
+    for k, (W, b) in enumerate(zip(res.weights, res.biases)):
+        z = z @ W.T + b
+        if k < len(res.weights) - 1:
+            z = np.tanh(z) if res.activation == "tanh" else np.maximum(z, 0.0)
+    return z * res.output_scale
+
+
 # ---- packed for the compiled plant (qr.sim.plant: the tail of its parameter vector) ----------------
 
 def pack(res: Residual) -> np.ndarray:

@@ -243,18 +243,10 @@ class Trained:
 
 
 def _reference(pieces: list[Piece], vehicle, H: int) -> np.ndarray:
-    """``ref_s``: rate_frozen's mean MAE over h = 1..H on the training windows (the compiled rollout)."""
-    from .rollout import pool
-    from .sim.plant import true_params
+    """``ref_s``: rate_frozen's mean MAE over h = 1..H on the training windows (:func:`qr.rollout.reference_mae`)."""
+    from .rollout import reference_mae
 
-    P = true_params(vehicle, residual=False)
-    parts = []
-    for pc in pieces:
-        if len(pc.train):
-            parts.append({"rf": score_plant(pc.windows.scored_at(pc.train), H, P, RATE_FROZEN)})
-    s, c = pool(parts)["rf"]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        ref = np.nanmean(s / c, axis=0)
+    ref = reference_mae([pc.windows.scored_at(pc.train) for pc in pieces if len(pc.train)], vehicle, H)
     if not np.all(np.isfinite(ref) & (ref > 0)):
         raise QrInputError(None, "the training windows hold no truth for some signal",
                            "give flights with position, attitude and rotor speeds")

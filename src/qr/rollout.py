@@ -29,7 +29,8 @@ from .allowed import check_fields, check_known, setting
 from .conventions import CHECKS
 from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
-from .sim.plant import N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
+from .sim.plant import (N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv,
+                        true_params)
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 DEFAULTS_FILE = "src/qr/rollout.py"
@@ -64,43 +65,73 @@ def _finite(x):
 
 
 @nb.njit(cache=True)
+def roll_window(t, X0, U, i, H, P, mode, r, out, k, xs, xn, x):
+    """The window starting at ``i``: the predicted tracked point's p, v (world), q and ω after each step
+    h = 1 … H into ``out[h − 1]`` (13 values); returns the number of steps made (fewer where the piece
+    ends) and whether the rollout diverged.  The one rollout loop of ``qr evaluate``, the refinement and their references.
+
+    ``mode``: MODEL, HOLD (the start state held) or RATE_FROZEN (ω held).  ``U[j − 1]`` acts over step
+    j (zero-order hold); where the held speeds jump, the rotors' change of angular momentum goes to the body
+    (:func:`qr.sim.plant.rotor_speed_change`, a plant with rotor inertia).  A rollout that diverges (a
+    non-finite state or a speed of 1 km/s) is scored as the protocol scores it: its last sane state stands
+    for the rest of the window."""
+    n = X0.shape[0]
+    zero = np.zeros(3)
+    x[:] = X0[i]
+    cg_from_tracked(x, r)
+    moving = mode != HOLD
+    steps = 0
+    diverged = False
+    for h in range(1, H + 1):
+        j = i + h
+        if j >= n:
+            break
+        if moving:
+            u = U[j - 1]
+            if h > 1 and mode == MODEL:
+                rotor_speed_change(x, U[j - 2], u, P)
+            rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], mode == RATE_FROZEN, zero, k, xs, xn)
+            if _finite(xn) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
+                x[:] = xn
+            else:  # diverged: the last sane state stands for the rest (its errors still count)
+                moving = False
+                diverged = True
+        px, py, pz, vx, vy, vz = tracked_pv(x, r)
+        row = out[h - 1]
+        row[0], row[1], row[2], row[3], row[4], row[5] = px, py, pz, vx, vy, vz
+        for m in range(6, 13):
+            row[m] = x[m]
+        steps = h
+    return steps, diverged
+
+
+@nb.njit(cache=True)
 def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
     """Chunk ``c``: every CHUNKS-th run of STRIDE starts (the scored starts are often one end of a
     flight, its held-out part: interleaving keeps the threads equally busy)."""
     n = X0.shape[0]
     r = P[P_MARKER:P_MARKER + 3].copy()
-    zero = np.zeros(3)
     x, xn, xs, k = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
+    out = np.empty((H, 13))
     for i in range(n - 1):
         if (i // STRIDE) % CHUNKS != c or not start_ok[i]:
             continue
-        x[:] = X0[i]
-        cg_from_tracked(x, r)
-        moving = mode != HOLD
-        for h in range(1, H + 1):
+        steps, _ = roll_window(t, X0, U, i, H, P, mode, r, out, k, xs, xn, x)
+        for h in range(1, steps + 1):
             j = i + h
-            if j >= n:
-                break
-            if moving:
-                u = U[j - 1]
-                rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], mode == RATE_FROZEN, zero, k, xs, xn)
-                if _finite(xn) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
-                    x, xn = xn, x
-                else:  # diverged: the last sane state stands for the rest (its errors still count)
-                    moving = False
-            px, py, pz, vx, vy, vz = tracked_pv(x, r)
+            y = out[h - 1]
             if np.isfinite(tp[j, 0]):
-                sums[h - 1, 0] += math.sqrt((px - tp[j, 0]) ** 2 + (py - tp[j, 1]) ** 2 + (pz - tp[j, 2]) ** 2)
+                sums[h - 1, 0] += math.sqrt((y[0] - tp[j, 0]) ** 2 + (y[1] - tp[j, 1]) ** 2 + (y[2] - tp[j, 2]) ** 2)
                 counts[h - 1, 0] += 1
             if np.isfinite(tv[j, 0]):
-                sums[h - 1, 1] += math.sqrt((vx - tv[j, 0]) ** 2 + (vy - tv[j, 1]) ** 2 + (vz - tv[j, 2]) ** 2)
+                sums[h - 1, 1] += math.sqrt((y[3] - tv[j, 0]) ** 2 + (y[4] - tv[j, 1]) ** 2 + (y[5] - tv[j, 2]) ** 2)
                 counts[h - 1, 1] += 1
             if np.isfinite(tq[j, 0]):
-                sums[h - 1, 2] += quat_angle(tq[j], x[6:10])
+                sums[h - 1, 2] += quat_angle(tq[j], y[6:10])
                 counts[h - 1, 2] += 1
             if np.isfinite(tw[j, 0]):
-                sums[h - 1, 3] += math.sqrt((x[10] - tw[j, 0]) ** 2 + (x[11] - tw[j, 1]) ** 2
-                                            + (x[12] - tw[j, 2]) ** 2)
+                sums[h - 1, 3] += math.sqrt((y[10] - tw[j, 0]) ** 2 + (y[11] - tw[j, 1]) ** 2
+                                            + (y[12] - tw[j, 2]) ** 2)
                 counts[h - 1, 3] += 1
 
 
@@ -202,6 +233,16 @@ def score_plant(w: Windows, horizon: int, P: np.ndarray, mode: int = MODEL) -> t
     U = w.inputs(P) if mode == MODEL else w.U
     _rollout(w.t, w.X0, U, w.ok, w.tp, w.tq, w.tv, w.tw, horizon, P, mode, sums, counts)
     return sums, counts
+
+
+def reference_mae(pieces: list[Windows], vehicle, horizon: int) -> np.ndarray:
+    """``ref_s`` (4,): ``rate_frozen``'s mean MAE over h = 1 … H on the scored starts of ``pieces``, per
+    quantity (NaN where no window holds that truth): the scale on which a rollout loss weighs p, v, R and ω
+    (the refinement's and the rollout-trained residual's)."""
+    P = true_params(vehicle, residual=False)
+    s, c = pool([{"rf": score_plant(w, horizon, P, RATE_FROZEN)} for w in pieces])["rf"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nanmean(s / c, axis=0)
 
 
 def pool(parts: list[dict]) -> dict:

@@ -20,9 +20,9 @@ import torch
 
 from .frames import G
 from .residual import GROUPS, ORDER
-from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_GE, P_GZ, P_HUB,
-                        P_J, P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_SCALE, P_TBIAS,
-                        P_TLIFT, P_UHOVER, P_WIND)
+from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_FLAP_PITCH, P_GE,
+                        P_GZ, P_HUB, P_J, P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_ROTOR_J,
+                        P_SCALE, P_TBIAS, P_TLIFT, P_UHOVER, P_WIND, P_YAW_GAIN)
 
 DTYPE = torch.float64
 
@@ -138,7 +138,10 @@ class Plant:
     def __init__(self, P: torch.Tensor, residual=None, frozen: bool = False):
         sc = P[P_SCALE:P_SCALE + 4]
         B = P[P_B:P_B + 16].reshape(4, 4)
-        self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN]]).T  # (4, 4): u² → T, Γx, Γy, Γz
+        self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN] * P[P_YAW_GAIN:P_YAW_GAIN + 4]]).T  # u² → T, Γx, Γy, Γz
+        # the rotors' angular momentum along body z per rotor speed (qr.sim.plant.rotor_momentum)
+        self.spin_J = -torch.sign(B[3].detach()) * P[P_ROTOR_J]
+        self.gyro = float(P[P_ROTOR_J].detach()) != 0.0 or P.requires_grad
         self.lin, self.quad, self.bias = P[P_LIN:P_LIN + 3], P[P_QUAD:P_QUAD + 3], P[P_BBIAS:P_BBIAS + 3]
         self.rdrag = P[P_RDRAG] * _XY
         self.ground = float(P[P_GE].detach()) != 0.0 or P.requires_grad
@@ -146,8 +149,8 @@ class Plant:
         zero = torch.zeros((), dtype=DTYPE)
         self.cg = torch.stack([-P[P_CG + 1], P[P_CG], zero])  # τ = r_cg × (0, 0, T)
         k = P[P_FLAP]
-        self.flap = torch.stack([torch.stack([zero, -k, zero]), torch.stack([k, zero, zero]),
-                                 torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = k (v_y, −v_x, 0)
+        self.flap = torch.stack([torch.stack([zero, -k * P[P_FLAP_PITCH], zero]), torch.stack([k, zero, zero]),
+                                 torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = (k v_y, −k r v_x, 0)
         self.tbias, self.wind, self.mass, self.J = P[P_TBIAS:P_TBIAS + 3], P[P_WIND:P_WIND + 3], P[P_MASS], P[P_J:P_J + 3]
         # the hubs (from the CG) where the rotor drag's H-force and translational lift act, where the plant has them
         self.hubs = P.requires_grad or float(P[P_RDM].detach()) != 0.0 or float(P[P_TLIFT].detach()) != 0.0
@@ -176,6 +179,9 @@ class Plant:
             F_hub = -self.rdm * u[:, :, None] * wxy + torch.nn.functional.pad(lift, (2, 0))
             t = t + torch.linalg.cross(self.r.expand(len(w), -1, -1), F_hub).sum(1)
             f = f + torch.nn.functional.pad(lift.sum(1), (2, 0))
+        if self.gyro:  # the gyroscopic moment −ω × h of the rotors' momentum h (body z)
+            hz = u @ self.spin_J
+            t = t + torch.stack([-w[:, 1] * hz, w[:, 0] * hz, torch.zeros_like(hz)], -1)
         if self.rem is not None:  # the learned torque remainder (qr.torque_remainder), a linear map
             phi = torch.cat([v_b, w, (u / self.uh) ** 2 - 1.0, torch.ones_like(T)], -1)
             t = t + phi @ self.rem
@@ -239,6 +245,9 @@ def rollout(X0: torch.Tensor, U: torch.Tensor, dt: torch.Tensor, P: torch.Tensor
     x = torch.cat([X0[:, :3] - pr, X0[:, 3:6] - vr, X0[:, 6:]], -1)
     out = []
     for h in range(U.shape[1]):
+        if h > 0 and plant.gyro and not frozen:  # the held speeds jump: the body takes the rotors' momentum
+            dw = ((U[:, h] - U[:, h - 1]) @ plant.spin_J) / plant.J[2]
+            x = torch.cat([x[:, :12], x[:, 12:13] - dw[:, None]], -1)
         x = plant.rk4(x, U[:, h], dt[:, h])
         out.append(x)
     X = torch.stack(out, 1)

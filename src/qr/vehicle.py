@@ -9,7 +9,12 @@ lever arm, docs/spec/diagnosis.md), ``rotor_speed_min`` / ``rotor_speed_max`` an
 ``torque_remainder`` (:mod:`qr.torque_remainder`), ``residual`` (a learned wrench,
 :mod:`qr.residual`: its model file is relative to the YAML that names it, and rewritten
 relative to wherever the vehicle is saved) and ``extends`` (a path, relative to this
-file, of a vehicle whose keys this one overrides).
+file, of a vehicle whose keys this one overrides).  Rotor and airframe properties the catalog has no
+term for, found by ``qr diagnose … diagnose.refine=rollout`` (:mod:`qr.diagnose.refine`) or known from a
+bench: ``rotor_inertia`` (kg m², each rotor about its spin axis: the gyroscopic moment and the reaction
+when a rotor changes speed), ``rotor_torque_gains`` (each rotor's C_Q over ``torque_coeff``) and
+``flapping_pitch_ratio`` (the blade-flapping moment about body y over the one about x: a frame whose
+flapping is not the same in roll and pitch).
 """
 
 from __future__ import annotations
@@ -33,9 +38,11 @@ REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_sp
 SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "hub_z": 0.0, "motor_time_constant": 0.03}
+# rotor and airframe properties the catalog has no term for (module doc); their values mean "none"
+ROTOR_PROPERTIES = {"rotor_inertia": 0.0, "rotor_torque_gains": 1.0, "flapping_pitch_ratio": 1.0}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
                          "description", "source", "torque_remainder", "residual", "rotor_input", "command_map"} \
-    | set(OPTIONAL_DEFAULTS)
+    | set(OPTIONAL_DEFAULTS) | set(ROTOR_PROPERTIES)
 ROTOR_INPUTS = ("speed", "command")
 
 
@@ -73,6 +80,21 @@ class Vehicle:
     @property
     def motor_time_constant(self) -> float:
         return float(self.raw.get("motor_time_constant", OPTIONAL_DEFAULTS["motor_time_constant"]))
+
+    @property
+    def rotor_inertia(self) -> float:
+        """Each rotor's moment of inertia about its spin axis (kg m²; 0: not modelled)."""
+        return float(self.raw.get("rotor_inertia", 0.0))
+
+    @property
+    def rotor_torque_gains(self) -> np.ndarray:
+        """Each rotor's yaw-torque coefficient over ``torque_coeff`` (ones: as the file)."""
+        return np.broadcast_to(np.asarray(self.raw.get("rotor_torque_gains", 1.0), float), (self.rotors.n,)).copy()
+
+    @property
+    def flapping_pitch_ratio(self) -> float:
+        """The blade-flapping coefficient about body y over the catalog's (about x); 1: the same."""
+        return float(self.raw.get("flapping_pitch_ratio", 1.0))
 
     @property
     def rotor_input(self) -> str:
@@ -220,6 +242,7 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
                                      f"({arm_max:g} m) from the CG",
                                "give the hubs' height above the CG in metres (0 when they sit in the CG's plane)")
     _check_rotor_input(path, raw, warn_)
+    _check_rotor_properties(path, raw, len(layout) if isinstance(layout, list) else 4)
     unknown = sorted(set(map(str, raw)) - KNOWN)
     if unknown:
         near = {k: c for k in unknown if (c := _near(k, KNOWN - set(raw)))}
@@ -240,6 +263,19 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
 
         vehicle.residual = load(raw["residual"], path)
     return vehicle
+
+
+def _check_rotor_properties(path, raw: dict, n: int) -> None:
+    """``rotor_inertia`` ≥ 0; ``rotor_torque_gains`` one positive number per rotor; ``flapping_pitch_ratio`` > 0."""
+    if "rotor_inertia" in raw:
+        _number(path, raw, "rotor_inertia", positive=False, minimum=0)
+    if "flapping_pitch_ratio" in raw:
+        _number(path, raw, "flapping_pitch_ratio")
+    g = raw.get("rotor_torque_gains")
+    if g is not None and not (isinstance(g, list) and len(g) == n
+                              and all(is_number(x) and math.isfinite(x) and x > 0 for x in g)):
+        raise QrInputError(path, f"rotor_torque_gains is {g!r}, not {n} positive numbers (one per rotor)",
+                           f"write rotor_torque_gains: [{', '.join(['1.0'] * n)}] (each rotor's C_Q over torque_coeff)")
 
 
 def _check_rotor_input(path, raw: dict, warn_=warn) -> None:

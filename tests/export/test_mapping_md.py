@@ -65,7 +65,10 @@ def vehicle_files(tmp_path_factory):
     save_vehicle(hb, tmp / "hummingbird_rad_s.yaml")
     files["hummingbird_rad_s"] = tmp / "hummingbird_rad_s.yaml"
     brushless = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml")
-    save_vehicle(brushless.with_changes(effects=every_effect(), ground_z=0.02, hub_z=0.011), tmp / "every_effect.yaml")
+    # with the rotor and airframe properties the catalog lacks (qr.vehicle.ROTOR_PROPERTIES): rows too
+    save_vehicle(brushless.with_changes(effects=every_effect(), ground_z=0.02, hub_z=0.011, rotor_inertia=3.1e-9,
+                                        rotor_torque_gains=[1.02, 0.97, 1.01, 0.99], flapping_pitch_ratio=1.3),
+                 tmp / "every_effect.yaml")
     files["every_effect"] = tmp / "every_effect.yaml"
     # refined: what diagnose.refine=rollout writes, the named effects then the vehicle's coefficients refined
     refined = load_vehicle(EXTENDED).effects + [{"name": n, "parameters": EXAMPLE[n]}
@@ -120,6 +123,9 @@ def test_every_key_and_effect_of_every_vehicle_file_is_a_row(vehicle_files, expo
     # the every-effect file indeed names the whole catalog, the hybrids both learned terms
     assert {e["name"] for e in load_vehicle(vehicle_files["every_effect"]).effects} == set(CATALOG)
     assert {"residual", "torque_remainder"} <= set(load_vehicle(vehicle_files["hybrid"]).raw)
+    rows = {r["qr item"]: r for r in table(exports["every_effect", "mujoco"])[1]}
+    assert [rows[k]["mapping"] for k in ("rotor_inertia", "rotor_torque_gains", "flapping_pitch_ratio")] == \
+        ["impossible", "approximate", "impossible"]
     row = next(r for r in table(exports["hummingbird_rad_s", "px4-gz"])[1] if r["qr item"] == "battery_cells")
     assert row["mapping"] == "impossible" and "qr ignores it" in row["conversion, condition or size"]
 

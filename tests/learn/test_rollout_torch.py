@@ -1,8 +1,8 @@
 """The rollout's differentiable twin (qr.rollout_torch) is the compiled plant (qr.sim.plant, qr.rollout).
 
 On random states and inputs, for the nominal vehicle and with every catalog effect (and the linear
-torque remainder and a learned wrench), the torch derivative, RK4 step and whole windows' errors
-equal the compiled ones to 1e-9; gradients reach the physical parameters; the prediction at step h
+torque remainder and a learned wrench, or the rotor inertia, per-rotor yaw gains and flapping ratio), the
+torch derivative, RK4 step and whole windows' errors equal the compiled ones to 1e-9; gradients reach the physical parameters; the prediction at step h
 never depends on a later input; a learned wrench flies wherever the vehicle does (a constant one is
 the catalog's body_force_bias + torque_bias in qr synth, the rollout, the replay and the study).
 """
@@ -43,10 +43,12 @@ def _net(vehicle, activation="tanh", depth=2, seed=0):
 def _case(name, hummingbird):
     v = hummingbird
     effects = []
-    if name in ("effects", "all"):
+    if name in ("effects", "all", "rotors"):
         assert set(EFFECTS) == set(CATALOG)
         effects = [parse_effect_spec(f"{k}:{p}") for k, p in EFFECTS.items()]
         v = v.with_changes(hub_z=0.03)  # hubs above the CG: the hub effects' roll and pitch parts too
+    if name == "rotors":  # the rotor and airframe properties the catalog lacks (qr.vehicle.ROTOR_PROPERTIES)
+        v = v.with_changes(rotor_inertia=6e-5, rotor_torque_gains=[1.1, 0.9, 1.05, 0.97], flapping_pitch_ratio=1.4)
     net = None
     if name == "all":
         W = np.random.default_rng(5).normal(0, 0.01, (3, 11))
@@ -72,7 +74,7 @@ def _states(rng, n, vehicle):
     return x, u
 
 
-CASES = ["nominal", "effects", "all", "relu"]
+CASES = ["nominal", "effects", "all", "relu", "rotors"]
 
 
 @pytest.mark.parametrize("case", CASES)

@@ -215,7 +215,7 @@ def _refined(states, rows, vehicle, final: Fit, extended: Vehicle, settings: Set
     refinement = refine_diagnosis(states, rows, final.labels.full.windows, vehicle, named, settings.diagnose,
                                   settings.evaluate, settings.seed, say)
     return refinement, extended.with_changes(effects=vehicle.effects + refinement.effects(
-        [e.in_vehicle() for e in final.effects]))
+        [e.in_vehicle() for e in final.effects]), **refinement.properties())
 
 
 def _torque_remainder(final: Fit, extended: Vehicle, vehicle, flights: Flights, ridge: float,

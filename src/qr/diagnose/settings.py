@@ -22,6 +22,7 @@ from ..identification.selection import SelectionConfig  # noqa: F401  (a group o
 
 DEFAULTS_FILE = "src/qr/diagnose/settings.py"
 REFINE_MODES = ("none", "rollout")  # diagnose.refine (qr.diagnose.refine)
+REFINE_BEYOND = ("auto", "hold", "bound")  # diagnose.refine_beyond
 
 
 def _catalog() -> list[str]:
@@ -75,6 +76,12 @@ class DiagnoseConfig:
     refine_stride: int = setting(5, "integer", ge=1)  # every stride-th training start is a window
     refine_iterations: int = setting(30, "integer", ge=1, le=1000)  # Levenberg-Marquardt, at most
     refine_delay: bool = setting(True, "boolean")  # a pure delay among the vehicle's coefficients refined
+    # per-rotor C_T and C_Q gains, the CG, the rotors' inertia and the flapping pitch/roll ratio refined too
+    refine_rotors: bool = setting(True, "boolean")
+    # a parameter the rollout wants beyond its physical range: fitted again within its range and the force and
+    # torque balance (bound), written at its one-step value (hold), or whichever of the two rolls out better on
+    # the held-out windows (auto); reported either way
+    refine_beyond: str = setting("bound", "one", names=lambda: list(REFINE_BEYOND))
 
     def __post_init__(self):
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)

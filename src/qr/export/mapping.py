@@ -276,6 +276,40 @@ def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list
     return "\n".join(lines) + "\n"
 
 
+def _rotor_property_rows(vehicle, pp: Plant) -> list[Row]:
+    """The rotor and airframe properties the catalog lacks (``qr.vehicle.ROTOR_PROPERTIES``), where the file
+    gives them: no simulator element of the three holds them; their size at hover and 1 rad/s or 1 m/s (a
+    file's neutral value: exact, nothing to carry)."""
+    rows, raw = [], vehicle.raw
+    if vehicle.rotor_inertia:
+        h = vehicle.rotor_inertia * pp.hover
+        rows.append(Row("rotor_inertia", g(vehicle.rotor_inertia) + " kg m²", "-", "-", IMPOSSIBLE,
+                        f"the rotors' gyroscopic moment and speed-change reaction: left out (one rotor's momentum at "
+                        f"hover {g(h)} N m s: a moment of that size per rad/s of body rate where the rotors' "
+                        "momenta do not cancel)"))
+    elif "rotor_inertia" in raw:
+        rows.append(Row("rotor_inertia", "0 kg m²", "-", "-", EXACT, "no rotor inertia: no gyroscopic moment, as the "
+                        "simulators' rotors"))
+    gains = vehicle.rotor_torque_gains
+    if np.any(gains != 1.0):
+        rows.append(Row("rotor_torque_gains", ", ".join(g(x) for x in gains), "-", "-", APPROXIMATE,
+                        "each rotor's C_Q: the export uses the file's torque_coeff (× yaw_torque_gain) for every "
+                        f"rotor; the yaw torques differ by up to {100 * float(np.max(np.abs(gains - 1))):.3g} %"))
+    elif "rotor_torque_gains" in raw:
+        rows.append(Row("rotor_torque_gains", ", ".join(g(x) for x in gains), "-", "-", EXACT,
+                        "every rotor's C_Q is torque_coeff: nothing to carry"))
+    if vehicle.flapping_pitch_ratio != 1.0:
+        k = float(pp.P[pl.P_FLAP])
+        rows.append(Row("flapping_pitch_ratio", g(vehicle.flapping_pitch_ratio), "-", "-", IMPOSSIBLE if k else EXACT,
+                        f"the pitch flapping coefficient over the roll one: left out (pitch moment "
+                        f"{g(abs(k * (vehicle.flapping_pitch_ratio - 1)) * V_REF)} N m at {g(V_REF)} m/s beyond "
+                        "blade_flapping's)" if k else "no blade flapping named: no effect"))
+    elif "flapping_pitch_ratio" in raw:
+        rows.append(Row("flapping_pitch_ratio", "1", "-", "-", EXACT, "pitch flapping as the roll one "
+                        "(blade_flapping's row)"))
+    return rows
+
+
 def common_rows(vehicle, pp: Plant, keys: dict[str, tuple]) -> list[Row]:
     """Rows every simulator has in the same way: the rotor-speed unit, mass, inertia, C_T, C_Q, and the file's
     keys that are no physics (name, arm_length, description, source, rotor_input, command_map).
@@ -326,6 +360,7 @@ def common_rows(vehicle, pp: Plant, keys: dict[str, tuple]) -> list[Row]:
                        "rotor speeds", EXACT, "the simulators take rotor speeds, as the log's u1..u4"
                        + ("; command_map is ignored (rotor_input is speed), as qr ignores it" if "command_map" in raw
                           else "")))
+    out += _rotor_property_rows(vehicle, pp)
     return out
 
 

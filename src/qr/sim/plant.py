@@ -30,8 +30,13 @@ P_CG, P_TBIAS, P_FLAP, P_MARKER = 42, 44, 47, 48
 P_REM_ON, P_UHOVER, P_REM = 51, 52, 53  # a learned torque remainder (qr.torque_remainder): flag, u_hover, W (3 x 11)
 P_RES_ON = 86  # a learned wrench (qr.residual): flag; the network follows at P[N_P:] (qr.residual.pack)
 P_RDM, P_TLIFT, P_HUB = 87, 88, 89  # rotor drag's moment k, translational lift k, hubs (x, y, z) x 4 from the layout
-N_P = 101
+# rotor and airframe properties the catalog has no term for (qr.vehicle.ROTOR_PROPERTIES): the blade-flapping
+# coefficient about y over the one about x; each rotor's inertia (kg m^2) times rad/s per rotor-speed unit;
+# each rotor's yaw-torque gain
+P_FLAP_PITCH, P_ROTOR_J, P_YAW_GAIN = 101, 102, 103
+N_P = 107
 N_X = 17
+RAD_S_PER_UNIT = {"rpm": 2 * math.pi / 60.0, "rad_s": 1.0}
 MIN_GROUND_HEIGHT = 0.02  # m; keeps k T / p_z² finite if a crash is simulated
 
 
@@ -49,6 +54,9 @@ def true_params(vehicle, effects: list[dict] | None = None, residual: bool = Tru
     P[P_UHOVER] = vehicle.hover_speed
     for i, (x, y) in enumerate(vehicle.rotors.positions[:4]):
         P[P_HUB + 3 * i:P_HUB + 3 * i + 3] = x, y, vehicle.hub_z
+    P[P_FLAP_PITCH] = vehicle.flapping_pitch_ratio
+    P[P_ROTOR_J] = vehicle.rotor_inertia * RAD_S_PER_UNIT[vehicle.rotor_speed_unit]
+    P[P_YAW_GAIN:P_YAW_GAIN + 4] = vehicle.rotor_torque_gains
     W = vehicle.raw.get("torque_remainder")
     if W:
         P[P_REM_ON] = 1.0
@@ -180,7 +188,7 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
         T += P[P_B + 0 * 4 + i] * sc * u2
         G0 += P[P_B + 1 * 4 + i] * sc * u2
         G1 += P[P_B + 2 * 4 + i] * sc * u2
-        G2 += P[P_B + 3 * 4 + i] * P[P_CQGAIN] * u2
+        G2 += P[P_B + 3 * 4 + i] * P[P_CQGAIN] * P[P_YAW_GAIN + i] * u2
         omega_sum += u_eff[i]
     f0 = -P[P_LIN] * vb0 - P[P_QUAD] * abs(vb0) * vb0 + P[P_BBIAS] + f_ext[0] - P[P_RDRAG] * omega_sum * vb0
     f1 = -P[P_LIN + 1] * vb1 - P[P_QUAD + 1] * abs(vb1) * vb1 + P[P_BBIAS + 1] + f_ext[1] \
@@ -219,8 +227,12 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
     ay = (R10 * f0 + R11 * f1 + R12 * f2 + P[P_WIND + 1]) / m
     az = (R20 * f0 + R21 * f1 + R22 * f2 + P[P_WIND + 2]) / m - G
     t0 += G0 - P[P_CG + 1] * T + P[P_TBIAS + 0] + P[P_FLAP] * vb1 + tau_ext[0]
-    t1 += G1 + P[P_CG + 0] * T + P[P_TBIAS + 1] - P[P_FLAP] * vb0 + tau_ext[1]
+    t1 += G1 + P[P_CG + 0] * T + P[P_TBIAS + 1] - P[P_FLAP] * P[P_FLAP_PITCH] * vb0 + tau_ext[1]
     t2 += G2 + P[P_TBIAS + 2] + tau_ext[2]
+    if P[P_ROTOR_J] != 0.0:  # the rotors' angular momentum h (body z): the gyroscopic moment -ω × h
+        hz = rotor_momentum(u_eff, P)
+        t0 -= wy * hz
+        t1 += wx * hz
     if P[P_REM_ON] != 0.0:
         for k in range(3):
             base = P_REM + 11 * k
@@ -243,6 +255,24 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
     t1 += Jz * wz * wx - Jx * wx * wz
     t2 += Jx * wx * wy - Jy * wy * wx
     return ax, ay, az, t0 / Jx, t1 / Jy, t2 / Jz
+
+
+@nb.njit(cache=True, inline="always")
+def rotor_momentum(u, P):
+    """The rotors' angular momentum along body z (kg m²/s): Σ J_r Ω_i spin_i, a rotor spinning
+    counter-clockwise seen from above (spin +1) having the yaw sign −1 (its drag turns the body clockwise)."""
+    h = 0.0
+    for i in range(4):
+        h -= (1.0 if P[P_B + 12 + i] > 0.0 else -1.0) * u[i]
+    return P[P_ROTOR_J] * h
+
+
+@nb.njit(cache=True)
+def rotor_speed_change(x, u_old, u_new, P):
+    """In place: the body's yaw rate when the rotors jump from ``u_old`` to ``u_new`` (a zero-order hold's
+    step): the motors' torques are internal, so the body takes the rotors' change of angular momentum."""
+    if P[P_ROTOR_J] != 0.0:
+        x[12] -= (rotor_momentum(u_new, P) - rotor_momentum(u_old, P)) / P[P_J + 2]
 
 
 @nb.njit(cache=True)
@@ -309,6 +339,8 @@ def rigid_body_rk4(x, u0, um, u1, P, dt, frozen, zero, k, xs, xn):
     the start, middle and end of the step; ``frozen``: ω held.  ``k`` (4, 13) and ``xs`` (13,) are
     scratch: the rollout and the replay take millions of steps, and small arrays cost more than the
     arithmetic.  The quaternion is renormalised."""
+    # rotor speeds that change within the step (u0 != u1) hand their angular momentum to the body
+    hdot = (rotor_momentum(u1, P) - rotor_momentum(u0, P)) / dt if P[P_ROTOR_J] != 0.0 else 0.0
     for s in range(4):
         if s > 0:
             c = dt if s == 3 else 0.5 * dt
@@ -318,6 +350,7 @@ def rigid_body_rk4(x, u0, um, u1, P, dt, frozen, zero, k, xs, xn):
             for j in range(13):
                 xs[j] = x[j]
         rigid_body_deriv(xs, u0 if s == 0 else (u1 if s == 3 else um), P, zero, zero, k[s])
+        k[s, 12] -= hdot / P[P_J + 2]
         if frozen:
             k[s, 10] = k[s, 11] = k[s, 12] = 0.0
     for j in range(13):
@@ -332,6 +365,8 @@ def deriv(x, u_cmd, u_eff, P, f_ext, tau_ext):
     dx = np.empty(N_X)
     rigid_body_deriv(x, u_eff, P, f_ext, tau_ext, dx)
     dx[13:17] = (u_cmd - x[13:17]) / P[P_TAU]
+    if P[P_ROTOR_J] != 0.0:  # the rotors' speed-up turns the body the other way (their momentum's rate)
+        dx[12] -= rotor_momentum(dx[13:17], P) / P[P_J + 2]
     return dx
 
 

@@ -287,10 +287,13 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
     check_out_dir(outdir, inputs=inputs, force=force, expected=OUTPUTS)
     effects = validate_effect_list(vehicle.effects) + validate_effect_list(effects)
     true_vehicle = vehicle.with_changes(effects=[]) if vehicle.effects else vehicle
-    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder or wrench (qr.residual):
+    # the nominal vehicle.yaml knows neither the effects nor a learned torque remainder or wrench (qr.residual)
+    # nor the rotor and airframe properties the catalog lacks (rotor inertia, per-rotor C_Q, flapping ratio):
     # all are the truth
+    from ..vehicle import ROTOR_PROPERTIES
+
     nominal = true_vehicle.to_dict()
-    learned = {k: nominal.pop(k) for k in ("torque_remainder", "residual") if k in nominal}
+    learned = {k: nominal.pop(k) for k in ("torque_remainder", "residual", *ROTOR_PROPERTIES) if k in nominal}
     with atomic_dir(outdir, force=force, command="qr synth") as tmp:
         flight, truth = synthesize(true_vehicle, effects, cfg)
         vehicle = vehicle_from_dict(nominal) if learned else true_vehicle

@@ -234,11 +234,17 @@ def held_out_models(vehicle, diag_out, out_dir: Path) -> tuple[list[str], list[s
 
     raw = ext.to_dict()
     remainder = raw.pop("torque_remainder", None)
-    add({**raw, "effects": one_step}, "extended_physical.yaml" if remainder else "extended_vehicle.yaml", "extended")
+    # the one-step model: the equation-error effects on the nominal vehicle's own rotor properties (the
+    # refinement may have written others)
+    from ..vehicle import ROTOR_PROPERTIES
+
+    one = {k: v for k, v in raw.items() if k not in ROTOR_PROPERTIES}
+    one.update({k: base.raw[k] for k in ROTOR_PROPERTIES if k in base.raw})
+    add({**one, "effects": one_step}, "extended_physical.yaml" if remainder else "extended_vehicle.yaml", "extended")
     if doc.get("refine"):
         add(raw, "refined_physical.yaml", "physical (refined)")
     if remainder:  # the remainder was fitted against the equation-error model
-        add({**raw, "effects": one_step, "torque_remainder": remainder}, "extended_vehicle.yaml", "hybrid")
+        add({**one, "effects": one_step, "torque_remainder": remainder}, "extended_vehicle.yaml", "hybrid")
     return models, labels
 
 
