@@ -184,3 +184,26 @@ def flight_info(set_name: str, flight: str, path: str | Path | None = None) -> F
     """What ``flight`` (a name, or a file named after it) of ``set_name`` flies (``path``: the data-set
     file, default the shipped Crazyflie one)."""
     return flight_set(set_name, path).info(flight)
+
+
+def spread(flights, infos: dict[str, FlightInfo] | None, n: int) -> list[str]:
+    """``n`` of ``flights`` that differ where they can (a reduced run): the first flight of each trajectory
+    type, then of each type's next trajectory, and so on, then second flights; kept in the set's order.
+    Without ``infos`` (no ``flown:``): the first ``n``."""
+    flights = [str(f) for f in flights]
+    if not infos or any(f not in infos for f in flights):
+        return flights[:n]
+    types = list(dict.fromkeys(infos[f].trajectory for f in flights))
+    ids: dict[str, list] = {}
+    for f in flights:
+        ids.setdefault(infos[f].trajectory, [])
+        if infos[f].trajectory_id() not in ids[infos[f].trajectory]:
+            ids[infos[f].trajectory].append(infos[f].trajectory_id())
+    same = {f: [g for g in flights if infos[g].trajectory_id() == infos[f].trajectory_id()].index(f) for f in flights}
+
+    def rank(f):
+        i = infos[f]
+        return (same[f], ids[i.trajectory].index(i.trajectory_id()), types.index(i.trajectory))
+
+    chosen = set(sorted(flights, key=rank)[:n])
+    return [f for f in flights if f in chosen]

@@ -128,6 +128,9 @@ def assign(flights, split: SplitConfig, infos: dict[str, FlightInfo] | None = No
     if split.kind == "repeat":
         test = flights[2::3] if len(flights) >= 3 else flights[-1:]
         train = [f for f in flights if f not in test]
+        if require and not train:
+            raise QrInputError(flights[0] if flights else None, "one flight cannot be held out by flight",
+                               "give two flights or more")
         if infos is None and split.set:
             infos = split.infos(flights)
         return Assignment("repeat", tuple(train), tuple(test), (), _repeat_text(train, test, infos))
@@ -257,3 +260,83 @@ def describe(assignment: Assignment, infos: dict[str, FlightInfo] | None) -> str
 def stems(paths) -> list[str]:
     """Flight names of files named after them (``results/ingest/brushless/eckart00.parquet`` -> ``eckart00``)."""
     return [Path(str(p)).stem for p in paths]
+
+
+# ---- the workflow's folds: the held-out splits it runs per set (conf/data/*.yaml, workflow.generalization) ----
+
+EACH = ("time_scale", "trajectory")
+FOLD_KEYS = ("kind", "trajectories", "time_scales", "each", "hybrid")
+
+
+@dataclass(frozen=True)
+class Fold:
+    """One held-out split the workflow trains and scores: its name (a folder), the split, whether a residual is
+    trained through the rollout for it, and the group of folds it belongs to (``each``: one fold per value,
+    pooled in the table)."""
+
+    name: str
+    split: SplitConfig
+    hybrid: bool
+    group: str | None = None
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "kind": self.split.kind, "trajectories": list(self.split.trajectories),
+                "time_scales": list(self.split.time_scales), "data": self.split.data, "set": self.split.set,
+                "hybrid": self.hybrid, "group": self.group}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Fold":
+        split = SplitConfig(kind=d["kind"], trajectories=list(d.get("trajectories") or []),
+                            time_scales=list(d.get("time_scales") or []), data=d.get("data", ""), set=d.get("set", ""))
+        return cls(d["name"], split, bool(d.get("hybrid")), d.get("group"))
+
+
+def fold_name(split: SplitConfig) -> str:
+    """A folder name saying what the split scores: ``trajectory-sideways``, ``trajectory-ts0.5``,
+    ``speed-ts0.6-0.5``, ``speed-fastest``."""
+    what = "-".join(split.trajectories) or ("ts" + "-".join(map(_scale, split.time_scales)) if split.time_scales
+                                            else "fastest")
+    return f"{split.kind}-{what}"
+
+
+def folds(specs, flights, data: str, set_name: str, infos: dict[str, FlightInfo] | None = None) -> list[Fold]:
+    """The folds of one set from its list of specs (``{kind, trajectories | time_scales | each, hybrid}``;
+    ``each: time_scale`` / ``each: trajectory``: one trajectory fold per time scale / type the set's flights
+    fly), each checked on ``flights`` (it must leave something to train on and to score)."""
+    flights = [str(f) for f in flights]
+    out: list[Fold] = []
+    for k, spec in enumerate(specs or []):
+        where = f"generalization.sets.{set_name}[{k}]"
+        if not isinstance(spec, dict) or set(spec) - set(FOLD_KEYS):
+            raise QrInputError(where, f"not a fold ({sorted(set(spec) - set(FOLD_KEYS)) if isinstance(spec, dict) else spec})",
+                               f"give a mapping of {', '.join(FOLD_KEYS)}")
+        base = {key: spec[key] for key in ("kind", "trajectories", "time_scales") if key in spec}
+        hybrid = bool(spec.get("hybrid", False))
+        each = spec.get("each")
+        if each is None:
+            split = SplitConfig(**base, data=data, set=set_name)
+            out.append(Fold(fold_name(split), split, hybrid))
+        else:
+            if each not in EACH or base.get("trajectories") or base.get("time_scales"):
+                raise QrInputError(where, f"each: {each!r} with named hold-outs",
+                                   f"give each: time_scale or each: trajectory, and no names")
+            if infos is None:
+                from .flightsets import flight_set
+
+                fs = flight_set(set_name, data or None)
+                infos = {f: fs.info(f) for f in flights}
+            info = infos
+            values = list(dict.fromkeys(getattr(info[f], each) for f in flights))
+            for v in values:
+                if v is None:
+                    continue
+                key = {"time_scale": "time_scales", "trajectory": "trajectories"}[each]
+                split = SplitConfig(kind=base.get("kind", "trajectory"), **{key: [v]}, data=data, set=set_name)
+                out.append(Fold(fold_name(split), split, hybrid, f"{split.kind}-each-{each}"))
+    for f in out:
+        assign(flights, f.split, infos)  # refuses a fold that leaves nothing to train on or to score
+    names = [f.name for f in out]
+    if len(set(names)) < len(names):
+        raise QrInputError(f"generalization.sets.{set_name}", "two folds hold out the same flights",
+                           "list each split once")
+    return out

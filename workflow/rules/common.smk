@@ -44,9 +44,12 @@ if _unknown:
                         "--config sets=[...] with the data set's names, or leave `sets` out to run them all")
 SETS = {name: dict(DATA["sets"][name]) for name in (config.get("sets") or DATA["sets"])
         if name not in (config.get("skip_sets") or [])}
-if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the first N flights of each set
-    for _s in SETS.values():
-        _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
+if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): N flights of each set that differ
+    from qr.flightsets import parse_flown, spread  # (in the set's order; without `flown:` the first N)
+
+    for _name, _s in SETS.items():
+        _info = parse_flown(_s["flown"], _s["flights"], f"{DATA_FILE}: sets.{_name}.flown") if _s.get("flown") else None
+        _s["flights"] = spread(_s["flights"], _info, int(config["flights_per_set"]))
 
 
 def raw_log(wildcards):

@@ -221,18 +221,18 @@ def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
                 run.artifact(Path(outdir) / p)
 
 
-def held_out(flights, split=None):
+def held_out(flights, split=None, require: bool = True):
     """The held-out protocol's :class:`qr.holdout.Assignment` of ``flights`` under ``split`` (a
     :class:`qr.holdout.SplitConfig`, ``evaluate.split``; default ``repeat``: every third flight)."""
     from ..holdout import SplitConfig, assign
 
-    return assign([str(f) for f in flights], split or SplitConfig())
+    return assign([str(f) for f in flights], split or SplitConfig(), require=require)
 
 
 def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
     """(training, held-out) flights of the repeat split: every third flight held out (the last one of fewer
     than three)."""
-    a = held_out(flights)
+    a = held_out(flights, require=False)
     return list(a.train), list(a.test)
 
 
