@@ -299,12 +299,20 @@ def fold_name(split: SplitConfig) -> str:
     return f"{split.kind}-{what}"
 
 
-def folds(specs, flights, data: str, set_name: str, infos: dict[str, FlightInfo] | None = None) -> list[Fold]:
+def folds(specs, flights, data: str, set_name: str, infos: dict[str, FlightInfo] | None = None,
+          skipped: list | None = None) -> list[Fold]:
     """The folds of one set from its list of specs (``{kind, trajectories | time_scales | each, hybrid}``;
     ``each: time_scale`` / ``each: trajectory``: one trajectory fold per time scale / type the set's flights
-    fly), each checked on ``flights`` (it must leave something to train on and to score)."""
+    fly), each checked on ``flights`` (it must leave something to train on and to score).  ``skipped``: a
+    list that receives ``(name, reason)`` of each fold these flights cannot make (a run on a subset of the
+    set), instead of the error."""
     flights = [str(f) for f in flights]
     out: list[Fold] = []
+    if specs and infos is None:  # a set whose flights are not described cannot be split by what they fly
+        from .flightsets import flight_set
+
+        fs = flight_set(set_name, data or None)
+        infos = {f: fs.info(f) for f in flights}
     for k, spec in enumerate(specs or []):
         where = f"generalization.sets.{set_name}[{k}]"
         if not isinstance(spec, dict) or set(spec) - set(FOLD_KEYS):
@@ -320,21 +328,23 @@ def folds(specs, flights, data: str, set_name: str, infos: dict[str, FlightInfo]
             if each not in EACH or base.get("trajectories") or base.get("time_scales"):
                 raise QrInputError(where, f"each: {each!r} with named hold-outs",
                                    f"give each: time_scale or each: trajectory, and no names")
-            if infos is None:
-                from .flightsets import flight_set
-
-                fs = flight_set(set_name, data or None)
-                infos = {f: fs.info(f) for f in flights}
-            info = infos
-            values = list(dict.fromkeys(getattr(info[f], each) for f in flights))
+            values = list(dict.fromkeys(getattr(infos[f], each) for f in flights))
             for v in values:
                 if v is None:
                     continue
                 key = {"time_scale": "time_scales", "trajectory": "trajectories"}[each]
                 split = SplitConfig(kind=base.get("kind", "trajectory"), **{key: [v]}, data=data, set=set_name)
                 out.append(Fold(fold_name(split), split, hybrid, f"{split.kind}-each-{each}"))
+    kept = []
     for f in out:
-        assign(flights, f.split, infos)  # refuses a fold that leaves nothing to train on or to score
+        try:
+            assign(flights, f.split, infos)  # refuses a fold that leaves nothing to train on or to score
+            kept.append(f)
+        except QrInputError as e:
+            if skipped is None:
+                raise
+            skipped.append((f.name, e.problem if hasattr(e, "problem") else str(e)))
+    out = kept
     names = [f.name for f in out]
     if len(set(names)) < len(names):
         raise QrInputError(f"generalization.sets.{set_name}", "two folds hold out the same flights",

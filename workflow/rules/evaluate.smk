@@ -4,6 +4,8 @@
 # rate_frozen (rule evaluate_learned: the rollout-trained residuals on the same flights).
 # Its training diagnosis adds the named experiments of conf/workflow.yaml's `evaluate.experiments`.
 
+import sys
+
 EVAL = config.get("evaluate", {})
 
 
@@ -92,21 +94,27 @@ GEN = config.get("generalization", {})
 
 
 def _generalization_folds():
+    """Set -> fold name -> qr.holdout.Fold; and the folds the run's flights cannot make (a subset of a set),
+    left out and said so (in the log and under the table)."""
     from qr.errors import QrInputError
     from qr.holdout import folds
 
-    out = {}
+    out, skipped = {}, []
     for name, specs in (GEN.get("sets") or {}).items():
         if name not in SETS or not specs:
             continue
+        left = []
         try:
-            out[name] = {f.name: f for f in folds(specs, SETS[name]["flights"], str(DATA_FILE), name)}
+            out[name] = {f.name: f for f in folds(specs, SETS[name]["flights"], str(DATA_FILE), name, skipped=left)}
         except QrInputError as e:
             raise WorkflowError(f"{DATA_FILE}: workflow.generalization.sets.{name}: {e}") from None
-    return out
+        for fold, why in left:
+            print(f"generalization: {name}/{fold} left out: {why}", file=sys.stderr)
+            skipped.append(f"{name}/{fold}: {why}")
+    return out, skipped
 
 
-GEN_FOLDS = _generalization_folds()
+GEN_FOLDS, GEN_SKIPPED = _generalization_folds()
 GEN_DIRS = [f"results/generalization/{s}/{f}" for s, fs in GEN_FOLDS.items() for f in fs]
 
 
@@ -149,6 +157,7 @@ rule generalization_summary:
     params:
         names=list(SETS),
         fold_sets=[s for s, fs in GEN_FOLDS.items() for _ in fs],
+        skipped=GEN_SKIPPED,
     conda:
         "../envs/qr.yaml"
     script:

@@ -10,4 +10,4 @@ with open(snakemake.log[0], "w") as log:
         scored.append(read_scored(name, "repeat", None, [held_out, learned]))
         scored += [read_fold(s, d) for s, d in zip(snakemake.params.fold_sets, snakemake.input.folds)
                    if s == name]
-    write(scored, snakemake.output.table)
+    write(scored, snakemake.output.table, skipped=snakemake.params.skipped)

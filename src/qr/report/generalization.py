@@ -164,7 +164,8 @@ def notes(scored: list[Scored], df: pd.DataFrame) -> list[str]:
     return lines
 
 
-def write(scored: list[Scored], csv_path) -> pd.DataFrame:
+def write(scored: list[Scored], csv_path, skipped=()) -> pd.DataFrame:
+    """The CSV and its Markdown twin (``skipped``: folds not run, ``"set/fold: why"``, listed under it)."""
     from ..atomic import write_text
     from .tables import write_table
 
@@ -172,5 +173,7 @@ def write(scored: list[Scored], csv_path) -> pd.DataFrame:
     write_table(df, csv_path, title="Generalisation: rollout on held-out flights per split (ratio to rate_frozen at "
                                     "h = 50)")
     md = Path(csv_path).with_suffix(".md")
-    write_text(md, md.read_text() + "\n".join(notes(scored, df)) + "\n")
+    extra = (["", "Folds not run (the run's flights cannot make them):", ""] + [f"- {x}" for x in skipped]
+             if skipped else [])
+    write_text(md, md.read_text() + "\n".join(notes(scored, df) + extra) + "\n")
     return df
