@@ -99,3 +99,39 @@ def test_qr_evaluate_flags_a_faster_flight_and_not_the_training_one(tmp_path):
     report = (tmp_path / "ev" / "report.md").read_text()
     sentence = f"{env['outside']} of {n} windows"
     assert "## Outside the training envelope" in report and sentence in report
+
+
+def test_the_held_out_mode_scores_what_the_split_holds_out_and_checks_it_against_the_rest(tmp_path):
+    """``qr evaluate`` with a trajectory ``evaluate.split``: of the flights given, those of the held-out
+    trajectory are scored, the others are the training side whose envelope the windows are checked against
+    (the spec's command line, through a subprocess)."""
+    import subprocess
+    import sys
+
+    import yaml
+
+    from qr.sim.synth import SynthConfig, write_synth
+    from qr.sim.trajectory import TrajectoryConfig
+    from qr.vehicle import load_vehicle
+
+    from conftest import VEHICLES
+
+    v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    for name, vmax, seed in (("hover", 0.5, 1), ("dash", 2.5, 2)):
+        write_synth(tmp_path / name, v, [], SynthConfig(duration=6, rate=100, seed=seed,
+                                                        trajectory=TrajectoryConfig(v_max=vmax, tilt_max_deg=20)))
+        (tmp_path / name / "flight.csv").rename(tmp_path / f"{name}.csv")
+    data = tmp_path / "d.yaml"
+    data.write_text(yaml.safe_dump({"root": ".", "sets": {"s": {"vehicle": "v", "flights": ["hover", "dash"], "flown": [
+        {"flights": ["hover"], "trajectory": "hover"}, {"flights": ["dash"], "trajectory": "dash"}]}}}))
+    r = subprocess.run([sys.executable, "-m", "qr.cli", "evaluate", "hover.csv", "dash.csv", "--vehicle",
+                        str(tmp_path / "hover" / "vehicle.yaml"), "--out", "ev", "evaluate.horizon=20",
+                        "evaluate.split.kind=trajectory", "evaluate.split.trajectories=[dash]",
+                        f"evaluate.split.data={data}", "evaluate.split.set=s"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    assert doc["flights"] == ["dash.csv"] and doc["split"]["test"] == ["dash.csv"]
+    assert doc["split"]["held_out"] == "dash" and doc["envelope"]["trained_on"] == ["hover.csv"]
+    assert doc["envelope"]["share_outside"] > 0.5
+    assert "Held out (`evaluate.split.kind=trajectory`): dash" in (tmp_path / "ev" / "report.md").read_text()

@@ -133,7 +133,7 @@ def envelope_section(doc: dict) -> list[str]:
          + ", ".join(f"{WORDS[q]} {_pct(by[q])}" for q in QUANTITIES)
          + (". There the models extrapolate." if env["outside"] else "."), "",
          f"The envelope: speed ≤ {lim['speed_max']:.3g} m/s, tilt ≤ {lim['tilt_max']:.3g} rad, rotor speeds "
-         + ", ".join(f"{a:.4g}–{b:.4g}" for a, b in zip(lim["rotor_min"], lim["rotor_max"]))
+         + ", ".join(f"{a:.5g}–{b:.5g}" for a, b in zip(lim["rotor_min"], lim["rotor_max"]))
          + ", body rates " + ", ".join(f"{a:.3g}…{b:.3g}" for a, b in zip(lim["rate_min"], lim["rate_max"]))
          + " rad/s (x, y, z).", ""]
     L += ["| flight | windows | outside | " + " | ".join(WORDS[q] for q in QUANTITIES) + " | starts outside (s) |",

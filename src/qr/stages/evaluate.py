@@ -67,7 +67,10 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     ``trained_on``: the flights the models were trained on (``{"flights", "reports", "estimates"}``, the
     latter two as above; default ``evaluate.trained_on``): every window is checked against their envelope
     (:mod:`qr.envelope`; ``evaluation.json``'s block ``envelope``).  ``split``: the held-out protocol's
-    :class:`qr.holdout.Assignment` (``evaluation.json``'s block ``split``)."""
+    :class:`qr.holdout.Assignment` (``evaluation.json``'s block ``split``).  Without it, a trajectory or
+    speed ``evaluate.split`` selects the flights to score among ``flights`` (the held-out mode); the others
+    are the training side, whose envelope the windows are checked against (unless ``evaluate.trained_on``
+    names the training flights)."""
     from ..outputs import check_out_dir
 
     given = [str(f) for f in (trained_on or {}).get("flights", [])]
@@ -91,6 +94,20 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     filter_cfg = to_dict(cfg.filter)
     resolve_filter(filter_cfg)
     models = models_of(vehs, names)
+    if split is None and ecfg.split.kind != "repeat":
+        # the held-out mode: the flights the split scores are evaluated, the others are the training side
+        from ..holdout import assign
+
+        split = assign([str(f) for f in flights], ecfg.split)
+        keep = [k for k, f in enumerate(flights) if str(f) in split.test]
+        pick = lambda xs: [xs[k] for k in keep] if xs else xs  # noqa: E731
+        if not trained_on and not ecfg.trained_on:
+            train = [k for k, f in enumerate(flights) if str(f) in split.train]
+            trained_on = {"flights": [str(flights[k]) for k in train],
+                          "reports": [reports[k] for k in train] if reports else None,
+                          "estimates": [estimates[k] for k in train] if estimates else None}
+        flights, measured, reports, estimates = pick(list(flights)), pick(measured), pick(reports), pick(estimates)
+        say(f"evaluate.split: {split.held_out}; scoring {len(flights)} flight(s)")
     trained_on = trained_on or ({"flights": ecfg.trained_on} if ecfg.trained_on else None)
     envelope = training_envelope(trained_on, vehs[0], ecfg, filter_cfg, say) if trained_on else None
     per_flight, steps, outside = {}, [], {}
