@@ -284,7 +284,8 @@ def held_out_line(gen: pd.DataFrame) -> str:
         rows = gen[(gen["set"] == name) & (gen["split"] != "repeat")]
         what = list(dict.fromkeys(rows["held_out"]))
         pooled = [w for w in what if "each in turn" in w]
-        what = pooled + [w for w in what if "each in turn" not in w and not any(w in p for p in pooled)]
+        members = {x for p in pooled for x in p.split(", each in turn")[0].removeprefix("time scales ").split(", ")}
+        what = pooled + [w for w in what if "each in turn" not in w and w.removeprefix("time scale ") not in members]
         if what:
             parts.append(f"{name}: {'; '.join(what)}")
     s = ("Held out, never trained on — " + "; ".join(f"{p}" for p in parts) + ". ") if parts else ""
