@@ -103,5 +103,6 @@ def test_the_generalization_table_holds_the_repeat_split_and_a_fold_that_trained
     assert [p.split("/")[-1] for p in split["test"]] == ["eckart06.parquet"]
     doc = json.loads((fold / "held_out" / "evaluation.json").read_text())
     assert doc["envelope"]["trained_on"] == split["train"] and doc["flights"] == split["test"]
-    training = json.loads((fold / "residual" / "training.json").read_text())["flights"]
-    assert not set(training["training"] + training["validation"]) & set(split["test"])
+    training = json.loads((fold / "residual" / "training.json").read_text())
+    assert not set(training["flights"]["training"] + training["flights"]["validation"]) & set(split["test"])
+    assert training["config"]["evaluate"]["split"]["kind"] == "speed"  # the split it was trained under

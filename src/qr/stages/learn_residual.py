@@ -54,7 +54,7 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
 
     flights = [str(f) for f in flights]
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
-    from dataclasses import replace
+    from dataclasses import asdict, replace
 
     from .. import holdout
     from .. import residual_fit as rf
@@ -78,6 +78,7 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
         raise QrInputError(dup, "the same flight is given twice", "give each flight once")
     if split is not None:
         ecfg = replace(ecfg, split=split)
+        plain["evaluate"]["split"] = asdict(split)  # training.json says the split it was trained under
     # what the flights fly (evaluate.split: trajectory or speed); a flight the split scores never trains
     infos = ecfg.split.infos(flights)
     scored = [f for f in flights if infos and holdout.named(infos[f], ecfg.split)]
