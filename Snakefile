@@ -8,6 +8,7 @@ include: "workflow/rules/filter.smk"
 include: "workflow/rules/learn.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/evaluate.smk"
+include: "workflow/rules/replay.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/export.smk"
 include: "workflow/rules/report.smk"
@@ -26,5 +27,6 @@ rule all:
         rules.diagnosis_summary.output,
         rules.evaluation_summary.output,
         rules.generalization_summary.output,
+        rules.replay_summary.output,
         rules.overview.output,
         expand(rules.export.output, target=EXPORT_TARGETS),

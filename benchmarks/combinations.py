@@ -4,11 +4,15 @@
     .venv/bin/python benchmarks/combinations.py --n 8 --duration 40
     .venv/bin/python benchmarks/combinations.py --only 3,17  # re-run some scenarios, verbose
     .venv/bin/python benchmarks/combinations.py --kernels SkylakeX,Haswell,Prescott  # once per OpenBLAS kernel
+    .venv/bin/python benchmarks/combinations.py --hub         # the hub effects' 20 scenarios instead
 
 Scenarios (qr.sim.scenarios.combinations): every pair of mechanism families once (every third
 with a third effect), then single effects; parameters drawn in the ranges stated there; vehicle
 alternating Hummingbird / Crazyflie; noise 0.5-2x the default (mocap 0.5 mm / 0.17 deg, rotor
-speeds 0.5 % of hover, 0.5 % dropouts); peak tilt 15-30 deg, peak speed 1-2.5 m/s.
+speeds 0.5 % of hover, 0.5 % dropouts); peak tilt 15-30 deg, peak speed 1-2.5 m/s.  With ``--hub``, the
+scenarios of the effects acting at the rotor hubs (rotor_drag_moment, translational_lift), each beside a
+member of every family and alone (qr.sim.scenarios.hub_combinations: 20), drawn apart so that the 44 stay
+the flights measured before those effects existed.
 
 Prints per scenario the true and the named set, then: the share with exactly the true set named
 (goal >= 90 %), the false-name rate (share of scenarios naming an effect that is not there, goal
@@ -40,7 +44,7 @@ os.environ.setdefault("QR_TRACKING", "off")
 import numpy as np  # noqa: E402
 
 from qr.effects import CATALOG  # noqa: E402
-from qr.sim.scenarios import combinations, diagnose_scenario, up_to_confounding  # noqa: E402
+from qr.sim.scenarios import combinations, diagnose_scenario, hub_combinations, up_to_confounding  # noqa: E402
 
 
 def parameter_errors(truth: list[dict], named: list[dict]) -> dict:
@@ -77,10 +81,11 @@ def main():
     ap.add_argument("--only", default="", help="comma-separated scenario indices (verbose)")
     ap.add_argument("--kernels", default="", help="comma-separated OpenBLAS kernels: one run each, compared")
     ap.add_argument("--json", default="", help="write each scenario's named set and parameters here")
+    ap.add_argument("--hub", action="store_true", help="the hub effects' scenarios (hub_combinations)")
     a = ap.parse_args()
     if a.kernels:
         return across_kernels(a)
-    scenarios = combinations(a.n, a.seed)
+    scenarios = hub_combinations(a.seed) if a.hub else combinations(a.n, a.seed)
     idx = [int(i) for i in a.only.split(",")] if a.only else range(len(scenarios))
     exact, false_name, strict_exact, strict_false, errors, rows, decided = 0, 0, 0, 0, {}, [], {}
     t_all = time.perf_counter()
@@ -141,7 +146,8 @@ def across_kernels(a) -> int:
         for k in a.kernels.split(","):
             out = Path(d) / f"{k}.json"
             args = [sys.executable, __file__, "--n", str(a.n), "--seed", str(a.seed), "--duration", str(a.duration),
-                    "--rate", str(a.rate), "--json", str(out)] + (["--only", a.only] if a.only else [])
+                    "--rate", str(a.rate), "--json", str(out)] + (["--only", a.only] if a.only else []) \
+                + (["--hub"] if a.hub else [])
             print(f"== OPENBLAS_CORETYPE={k}", flush=True)
             subprocess.run(args, env={**os.environ, "OPENBLAS_CORETYPE": k}, check=True)
             runs[k] = json.loads(out.read_text())

@@ -95,3 +95,36 @@ def trimmed(u: np.ndarray, vehicle) -> np.ndarray:
     falls in 2 s; each rotor's fluctuations keep their measured shape."""
     target = np.linalg.solve(vehicle.rotors.matrix, [vehicle.mass * 9.81, 0.0, 0.0, 0.0])  # mean u² per rotor
     return u * np.sqrt(target / np.mean(u**2, axis=0))
+
+
+def hybrid_file(vehicle, folder, seed: int = 7, force: float = 0.01, torque: float = 1e-5,
+                remainder: float = 0.0):
+    """``folder/hybrid_vehicle.yaml`` and its ``residual.npz``, written as ``qr learn residual`` writes them
+    (:func:`qr.residual.save_weights`, :func:`qr.residual.block`, :func:`qr.vehicle.save_vehicle`): ``vehicle``
+    plus an untrained network (every input group, tanh, 17-12-6; seeded weights) whose output is about ``force``
+    N and ``torque`` N m, and, if ``remainder`` > 0, a learned torque remainder of weights about that size."""
+    from pathlib import Path
+
+    from qr import residual as rs
+    from qr import torque_remainder as tr
+    from qr.vehicle import save_vehicle
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    inputs = ("v_b", "omega", "g_b", "u", "u2")
+    scale = vehicle.hover_speed / 0.7  # rotor speeds near 0.7 of the scale in hover, as qr learn residual has them
+    mean = np.r_[np.zeros(9), np.full(4, 0.7), np.full(4, 0.49)]
+    spread = np.r_[np.full(3, 0.5), np.full(3, 2.0), np.full(3, 0.2), np.full(4, 0.03), np.full(4, 0.04)]
+    net = rs.Residual(inputs, "tanh", (rng.normal(0, 0.6, (12, 17)), rng.normal(0, 0.6, (6, 12))),
+                      (rng.normal(0, 0.2, 12), rng.normal(0, 0.2, 6)), mean, spread,
+                      np.r_[np.full(3, force), np.full(3, torque)], scale)
+    rs.save_weights(net, folder / "residual.npz")
+    raw = vehicle.to_dict()
+    raw["residual"] = rs.block(net, str((folder / "residual.npz").resolve()), "an untrained network (tests)",
+                               rs.rms_size(net, np.zeros((1, 3)), np.zeros((1, 3)), np.array([[0.0, 0.0, -1.0]]),
+                                           np.full((1, 4), vehicle.hover_speed), ["hover.csv"]))
+    if remainder > 0:
+        raw["torque_remainder"] = tr.block(rng.normal(0, remainder, (3, 11)), "a seeded remainder (tests)")
+    save_vehicle(raw, folder / "hybrid_vehicle.yaml")
+    return folder / "hybrid_vehicle.yaml"

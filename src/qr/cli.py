@@ -18,6 +18,7 @@ commands:
   summary    per-flight table of ingested flights
   diagnose   name what the nominal model gets wrong, extend it, measure the gain
   evaluate   score vehicle models by multi-step open-loop rollout (the field's yardstick)
+  replay     fly vehicle models under the vehicle's own controller along the flight's setpoints, against the log
   export     a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo, with mapping.md
   filter     Kalman filters / smoother (Hydra overrides)
   learn      train and test residual models, -m for a sweep (Hydra overrides)
@@ -31,6 +32,8 @@ examples:
       --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --effect cg_offset:rx=0.01,ry=0 --out synth1
   qr diagnose synth1/flight.csv --vehicle synth1/vehicle.yaml --out diag1
   qr evaluate synth1/flight.csv --vehicle synth1/vehicle.yaml --vehicle diag1/extended_vehicle.yaml --out eval1
+  qr replay ../shared/data/imrclab-crazyflie/brushless_flights/data/eckart00 --vehicle crazyflie21_brushless \
+      --controller lee --out rep1 replay.trajectory=../shared/data/crazyswarm2-figure8/figure8.csv
   qr summary results/ingest/brushless/*.parquet --vehicle conf/vehicle/crazyflie21_brushless.yaml \\
       --out summary.csv
   qr export diag1/extended_vehicle.yaml --to rotorpy --out sim_rotorpy
@@ -70,7 +73,8 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
     s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
-                       epilog="example:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                       epilog="examples:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
+                              "--out flight.csv\n  qr ingest px4_export.csv --vehicle my_px4.yaml --frame ned-frd "
                               "--out flight.csv")
     s.add_argument("src", help="raw log: canonical CSV/Parquet, Crazyflie uSD binary, PX4 ULog, ROS 1 bag or ROS 2 bag folder")
     s.add_argument("--vehicle", required=True, help="vehicle YAML (flight-log.md)")
@@ -85,6 +89,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--skip-check", action="append", default=[], metavar="CHECK",
                    help="a convention check to skip, where you know the log is right (repeatable): thrust_axis, "
                         "gyro, rotor_layout (docs/cli.md)")
+    s.add_argument("--frame", default="enu-flu", choices=["enu-flu", "ned-frd"],
+                   help="the frames a CSV/Parquet log (or ROS bag) is written in: enu-flu (the spec's: ENU world, "
+                        "FLU body; default) or ned-frd (PX4's CSV exports: NED world, FRD body), converted to "
+                        "enu-flu: position, velocity vx..vz if present, attitude, gyro and accelerometer "
+                        "(docs/ingest.md). A PX4 ULog is converted without it")
 
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -92,7 +101,7 @@ def _parser() -> argparse.ArgumentParser:
                               "--rate 100 --seed 1 --effect linear_drag:kx=0.3,ky=0.3,kz=0.1 --out DIR\n"
                               "effects: see docs/spec/diagnosis.md (qr.effects.CATALOG)")
     s.add_argument("--vehicle", required=True, help="NOMINAL vehicle YAML (an extended one adds its effects)")
-    s.add_argument("--duration", type=float, default=60.0, help="s (default 60)")
+    s.add_argument("--duration", type=float, help="s (default 60; --controller lee: the trajectory's length + 2.5 s)")
     s.add_argument("--rate", type=float, default=100.0, help="log rate in Hz (default 100)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--effect", action="append", default=[], metavar="NAME:P=V,...",
@@ -108,6 +117,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--yaw-rate", type=float, default=0.0, help="constant yaw spin, rad/s")
     s.add_argument("--v-max", type=float, default=2.5, help="peak horizontal speed, m/s")
     s.add_argument("--tilt-max", type=float, default=25.0, help="peak tilt, degrees")
+    s.add_argument("--controller", default="lqr", choices=["lqr", "lee"],
+                   help="lqr: the thesis's LQR + PD along a random trajectory (default); lee: the Crazyflie firmware's "
+                        "Lee controller along --trajectory (qr replay rebuilds the flight)")
+    s.add_argument("--trajectory", metavar="PIECES.csv",
+                   help="--controller lee: a crazyswarm trajectory CSV (e.g. figure8.csv), flown from (0, 0, 1) m")
+    s.add_argument("--timescale", type=float, default=1.0, help="--controller lee: the trajectory's time scale")
 
     s = sub.add_parser("summary", help="table of ingested flights", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr summary results/ingest/brushless/*.parquet "
@@ -130,6 +145,20 @@ def _parser() -> argparse.ArgumentParser:
                      "writes OUTDIR/evaluation.json, report.md, figures/rollout_mae.png",
                      vehicle=dict(action="append", help="vehicle YAML to score (repeatable; the first one also "
                                                         "filters and is the references' nominal)"))
+    s = _flights_command(sub, "replay", "fly vehicle models in closed loop under the vehicle's own controller "
+                         "along the flight's setpoints, against the log (docs/spec/replay.md)",
+                         "examples:\n  qr replay LOG --vehicle v.yaml --vehicle diag/extended_vehicle.yaml --controller lee "
+                         "--out rep replay.trajectory=figure8.csv replay.timescale=0.8\n"
+                         "  qr replay synth1/flight.csv --vehicle synth1/vehicle.yaml --controller lee --out rep\n"
+                         "writes OUTDIR/replay.json, report.md, figures/; settings: conf/replay/default.yaml, "
+                         "conf/controller/lee.yaml (controller.KR=[...])",
+                         vehicle=dict(action="append", help="vehicle YAML to fly (repeatable; the first one reads "
+                                                            "raw logs)"),
+                         what="raw log(s) (Crazyflie uSD: their motor commands give the setpoints' start) or canonical "
+                              "flight(s)")
+    s.add_argument("--controller", required=True, metavar="lee|rotorpy_se3|MODULE:CLASS",
+                   help="the controller the vehicle flew: lee (the Crazyflie firmware's), rotorpy_se3, or your class "
+                        "(qr.replay.controller.Controller)")
     s = sub.add_parser("export", help="a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo (docs/spec/export.md)",
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXPORT_EPILOG)
     s.add_argument("vehicle", metavar="VEHICLE.yaml", help="vehicle YAML: nominal, extended or hybrid (as qr "
@@ -186,15 +215,17 @@ def _cmd_hydra_stage(a) -> None:
         sys.argv = argv
 
 
-def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict) -> None:
+def _flights_command(sub, name: str, help: str, epilog: str, vehicle: dict,
+                     what: str = "canonical flight(s)") -> argparse.ArgumentParser:
     """A stage command on flights: ``FLIGHT.csv ... [KEY=VALUE ...] --vehicle V --out DIR [--force]``."""
     s = sub.add_parser(name, help=help, formatter_class=argparse.RawDescriptionHelpFormatter, epilog=epilog)
     s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
-                   help=f"canonical flight(s), and optional Hydra overrides (conf/{name}/default.yaml), "
+                   help=f"{what}, and optional Hydra overrides (conf/{name}/default.yaml), "
                         "before or after the options")
     s.add_argument("--vehicle", required=True, **vehicle)
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
+    return s
 
 
 EXPORT_EPILOG = """\
@@ -206,6 +237,9 @@ simulator's units, exact / approximate (with the condition) / impossible (with i
                  OUTDIR/<name>.params (PX4: CA_ROTOR*_PX/PY/KM, SIM_GZ_EC_MIN/MAX; QGroundControl format)
   --to mujoco    OUTDIR/<name>.xml: MJCF body (mass, inertia, CG), thrust and yaw-moment actuators per rotor
                  (ctrl = rotor speed squared, (rad/s)^2)
+a hybrid (qr learn residual): rotorpy also writes <name>_residual.npz (QrMultirotor evaluates the network in
+NumPy); mujoco writes <name>_learned_wrench.py (a control callback applying it) and the .npz; px4-gz lists
+it as impossible with its RMS force and torque over the training flights
 
 examples:
   qr export diag/extended_vehicle.yaml --to rotorpy --out sim_rotorpy
@@ -224,7 +258,7 @@ def _cmd_ingest(a):
     from .ingest.rosbag import parse_topics
 
     df = ingest_file(a.src, a.vehicle, a.out, a.format, force=a.force, topics=parse_topics(a.topic), align=a.align,
-                     skip_checks=a.skip_check)
+                     skip_checks=a.skip_check, frame=a.frame)
     print(f"{a.out}: {len(df)} samples, {df['t'].iloc[-1] - df['t'].iloc[0]:.2f} s")
     for kind, o in df.attrs["time_offsets"].items():
         when = "late" if o["offset_s"] >= 0 else "early"
@@ -243,6 +277,7 @@ def _check_synth_arguments(a):
     noise = NoiseConfig()
     ranges = {  # option: (allowed values, default)
         "duration": (allowed(gt=0, le=3600), 60.0),  # s; an hour at 100 Hz is 360 000 rows
+        "timescale": (allowed(gt=0, le=100), 1.0),
         "rate": (allowed(gt=0, le=10000), 100.0),  # Hz
         "position_noise": (allowed(ge=0), noise.position_std),
         "attitude_noise": (allowed(ge=0), noise.attitude_std),
@@ -277,9 +312,20 @@ def _cmd_synth(a):
         if val is not None:
             noise = replace(noise, **{field: val})
     traj = TrajectoryConfig(v_max=a.v_max, tilt_max_deg=a.tilt_max, yaw_rate=a.yaw_rate, low_passes=a.low_passes)
-    cfg = SynthConfig(duration=a.duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
-                      trajectory=traj)
-    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle])
+    duration, setpoints = a.duration if a.duration is not None else 60.0, None
+    if a.controller == "lee":
+        from .replay.synth import duration_of, setpoints_record
+
+        if not a.trajectory:
+            raise QrInputError(None, "--controller lee flies a trajectory and none is given",
+                               "add --trajectory PIECES.csv (a crazyswarm trajectory, e.g. figure8.csv)")
+        setpoints = setpoints_record(a.trajectory, a.timescale, (0.0, 0.0, 1.0), vehicle)
+        duration = a.duration if a.duration is not None else duration_of(setpoints)
+    elif a.trajectory:
+        raise QrInputError(a.trajectory, "--trajectory is flown by --controller lee only", "add --controller lee")
+    cfg = SynthConfig(duration=duration, rate=a.rate, seed=a.seed, noise=noise, noise_free=a.noise_free,
+                      trajectory=traj, controller=a.controller, setpoints=setpoints)
+    meta = write_synth(a.out, vehicle, effects, cfg, force=a.force, inputs=[a.vehicle, a.trajectory])
     names = ", ".join(e["name"] for e in meta["effects"]) or "none"
     print(f"{a.out}: {meta['samples']} samples at {a.rate:g} Hz, hidden effects: {names}")
 
@@ -312,6 +358,13 @@ def _cmd_evaluate(a):
     run_evaluation(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
+def _cmd_replay(a):
+    from .stages.replay import run_replay
+
+    flights, overrides = _flights_and_overrides(a, "replay")
+    run_replay(flights, a.vehicle, a.controller, a.out, overrides, force=a.force)
+
+
 def _cmd_export(a):
     from .stages.export import run_export
 
@@ -340,7 +393,7 @@ def _parse(parser: argparse.ArgumentParser, argv) -> argparse.Namespace:
     if argv and argv[0] in HYDRA_STAGES:
         return argparse.Namespace(command=argv[0], rest=argv[1:])
     args, rest = parser.parse_known_args(argv)
-    if args.command in ("diagnose", "evaluate"):
+    if args.command in ("diagnose", "evaluate", "replay"):
         rest = argv[argv.index(args.command) + 1:]
         args = parser.commands[args.command].parse_intermixed_args(rest, argparse.Namespace(command=args.command))
     elif rest:
@@ -360,7 +413,7 @@ def _main(argv):
     with sigterm_raises():
         try:
             {"ingest": _cmd_ingest, "synth": _cmd_synth, "summary": _cmd_summary, "diagnose": _cmd_diagnose,
-             "evaluate": _cmd_evaluate, "export": _cmd_export, "learn residual": _cmd_learn_residual,
+             "evaluate": _cmd_evaluate, "replay": _cmd_replay, "export": _cmd_export, "learn residual": _cmd_learn_residual,
              **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
             print(f"qr: error: {e}", file=sys.stderr)

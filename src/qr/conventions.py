@@ -16,11 +16,11 @@ vehicle's unknown effects:
 - **rotor layout**: the roll, pitch and yaw torque of the rotor map moves with the torque the attitude
   needs, ``J ω̇ + ω × J ω``, on every axis (a partial correlation: the aerodynamic torques a rotor map
   leaves out projected out first).  Readings: every other numbering of the rotors, the yaw
-  signs reversed.
+  signs reversed, and the standard layouts (plus, x) in every numbering (an x file for a plus frame).
 
 A reading that explains the log far better than the log as written (the fit's residual ``RATIO``
-times smaller on some axis and no larger on any, or a numbering's summed correlation ``Z_LAYOUT``
-standard errors higher) is the likely mistake, and the check refuses the log in one line
+times smaller on some axis and no larger on any, or a rotor reading's summed correlation clearly
+higher: ``check_rotor_layout``) is the likely mistake, and the check refuses the log in one line
 naming it and the fix.  Skipped, with the reason said, where the log cannot tell (a hover without
 manoeuvres; no gyro).  A user who knows better names the check in ``skip_checks``.
 """
@@ -36,8 +36,9 @@ import pandas as pd
 
 from .airborne import airborne_mask
 from .errors import QrInputError
-from .flight import GYRO, HOVER_RATIO_LIMITS, POSITION, QUATERNION, ROTORS
-from .frames import G, NED_TO_ENU, FRD_TO_FLU, quat_to_rot, rot_to_quat
+from .flight import GYRO, HOVER_RATIO_LIMITS, POSITION, QUATERNION, ROTORS, to_spec_frames
+from .frames import G, quat_to_rot
+from .identification.edge import Margins, rank_key
 
 CHECKS = ("thrust_axis", "gyro", "rotor_layout")
 SMOOTH_S = 0.2  # Savitzky-Golay window shared by every signal (s): mocap second derivatives need it
@@ -47,6 +48,11 @@ STRETCH = 2000  # ... each this long
 MAX_LAG_S = 0.15  # the rotor stream's stamp may be this far off the motion capture's (s) for the layout check
 RATIO = 2.0  # a reading must cut the residual RMS by this factor to be the likely mistake
 Z_LAYOUT = 4.0  # standard errors by which another numbering's summed correlation must beat the written one
+BLOCK_S = 1.0  # the layout check's jackknife blocks (s): several closed-loop correlation times of the smoothing
+MIN_BLOCKS = 10  # blocks the paired standard error needs (a 5-9 s measured flight: the Fisher rule alone)
+Z_PAIRED = 3.0  # paired standard errors by which another reading must beat the file's (chosen: the correct
+# files' best other reading sits below -1 on every synthetic flight and below +1 on 146 measured ones)
+MIN_LAYOUT_GAIN = 0.1  # ... and the least summed-correlation gain it names (chosen: a tenth of one axis's)
 
 
 @dataclass(frozen=True)
@@ -84,13 +90,8 @@ def _q(df):
     return df[QUATERNION].to_numpy(float)
 
 
-def _ned_frd(df):
-    q = _q(df)
-    ok = np.isfinite(q).all(axis=1)
-    q2 = np.full_like(q, np.nan)
-    q2[ok] = rot_to_quat(NED_TO_ENU @ quat_to_rot(q[ok]) @ FRD_TO_FLU)
-    return _with(_with(df, POSITION, df[POSITION].to_numpy(float) @ NED_TO_ENU.T), QUATERNION, q2)
-
+# the command a fix names: {log} and {vehicle} are filled in by require() with the user's own files
+CONVERT_NED_FRD = "qr ingest {log} --vehicle {vehicle} --frame ned-frd --out FLIGHT.csv"
 
 THRUST_READINGS = (
     Reading("scalar_last", "the quaternion looks scalar-last (x, y, z, w)",
@@ -103,9 +104,9 @@ THRUST_READINGS = (
             "give positions in a z-up world frame (negate pz, and check the attitude's frame too)",
             lambda df: _with(df, ["pz"], -df["pz"].to_numpy(float))),
     Reading("ned_frd", "the log looks NED world with an FRD body (PX4's frames)",
-            "convert to ENU world / FLU body (p_enu = [y, x, -z]; R_enu_flu = T R_ned_frd F, see "
-            "docs/spec/flight-log.md), or read the log with qr ingest",
-            _ned_frd),
+            f"convert it to the spec's ENU world / FLU body: {CONVERT_NED_FRD} (positions, velocity, attitude, "
+            "gyro and accelerometer; docs/ingest.md)",
+            lambda df: to_spec_frames(df, "ned-frd")),
     Reading("millimetres", "the positions look like millimetres",
             "divide px, py, pz by 1000 so they are in metres",
             lambda df: _with(df, POSITION, df[POSITION].to_numpy(float) / 1000)),
@@ -362,41 +363,158 @@ def _torque_pairs(pieces: list[pd.DataFrame], vehicle) -> list[tuple[np.ndarray,
     return out
 
 
-def _partial(pairs, lag: int) -> tuple[np.ndarray, np.ndarray]:
+def _partial(pairs, lag: int, step: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """With the rotor stream ``lag`` samples late: per torque axis, u² (N, n) and the needed torque (N,), each
-    with the left-out torques (``_torque_pairs``) projected out: what a rotor numbering must explain."""
-    U, N, Z = [], [], []
-    for u2, need, z in pairs:
+    with the left-out torques (``_torque_pairs``) projected out: what a rotor numbering must explain; and
+    each row's block (``BLOCK_S`` of its piece's needed-torque rows: the same id at every lag)."""
+    U, N, Z, B = [], [], [], []
+    for i, (u2, need, z) in enumerate(pairs):
         m = len(u2) - abs(lag)
         if m > 0:
             a, b = max(lag, 0), max(-lag, 0)
             U.append(u2[a:a + m]), N.append(need[b:b + m]), Z.append(z[b:b + m])
+            B.append(i * 10**9 + (np.arange(b, b + m) * step // BLOCK_S).astype(np.int64))
     u2, need, z = np.vstack(U), np.vstack(N), np.concatenate(Z)
     us, ns = [], []
     for k in range(3):
         Q = np.linalg.qr(z[:, k][:, np.any(z[:, k] != 0, axis=0)])[0]
         us.append(u2 - Q @ (Q.T @ u2))
         ns.append(need[:, k] - Q @ (Q.T @ need[:, k]))
-    return np.stack(us), np.stack(ns)  # (3, N, n), (3, N)
+    return np.stack(us), np.stack(ns), np.concatenate(B)  # (3, N, n), (3, N), (N,)
 
 
-def _correlations(us: np.ndarray, ns: np.ndarray, maps: np.ndarray) -> np.ndarray:
+@dataclass(frozen=True)
+class LayoutStats:
+    """Per block of ``_partial``'s rows: the small Gram matrices a rotor map's partial correlation is made of
+    (a map's torque is linear in u²): ``C`` (K, 3, n, n) of u², ``d`` (K, 3, n) of u² with the needed
+    torque, ``e`` (K, 3) of the needed torque; ``ids`` (K,) the blocks."""
+
+    C: np.ndarray
+    d: np.ndarray
+    e: np.ndarray
+    ids: np.ndarray
+
+    @classmethod
+    def of(cls, us: np.ndarray, ns: np.ndarray, blocks: np.ndarray) -> "LayoutStats":
+        starts = np.flatnonzero(np.r_[True, blocks[1:] != blocks[:-1]])  # blocks are runs of rows
+        C = np.add.reduceat(np.einsum("knr,kns->nkrs", us, us), starts, axis=0)
+        d = np.add.reduceat(np.einsum("knr,kn->nkr", us, ns), starts, axis=0)
+        e = np.add.reduceat(np.einsum("kn,kn->nk", ns, ns), starts, axis=0)
+        return cls(C, d, e, blocks[starts])
+
+    def on(self, ids: np.ndarray) -> "LayoutStats":
+        """The same blocks as ``ids`` (zeros where this lag has none of a block's rows)."""
+        at = np.searchsorted(ids, self.ids)
+        out = [np.zeros((len(ids),) + a.shape[1:]) for a in (self.C, self.d, self.e)]
+        for o, a in zip(out, (self.C, self.d, self.e)):
+            o[at] = a
+        return LayoutStats(*out, ids)
+
+
+def _correlations(C: np.ndarray, d: np.ndarray, e: np.ndarray, maps: np.ndarray) -> np.ndarray:
     """Partial correlation (c, 3) of each torque axis of each rotor map ``maps`` (c, 4, n) with the needed
-    torque, from the axes' small Gram matrices (a rotor map's torque is linear in u²)."""
-    C = np.einsum("knr,kns->krs", us, us)
-    d = np.einsum("knr,kn->kr", us, ns)
-    e = np.einsum("kn,kn->k", ns, ns)
+    torque, from the axes' Gram matrices ``C`` (3, n, n), ``d`` (3, n), ``e`` (3,)."""
     b = maps[:, 1:, :]  # (c, 3, n)
     num = np.einsum("ckr,kr->ck", b, d)
     den = np.sqrt(np.einsum("ckr,krs,cks->ck", b, C, b) * e)
     return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
 
 
+@dataclass(frozen=True)
+class LayoutReading:
+    """A rotor map the log may have been written for: ``geometry`` (``"file"``: the vehicle file's rotors;
+    ``"plus"``, ``"x"``: the standard layouts at the file's arm length), the log's column ``j`` driving the
+    geometry's rotor ``order[j]``, the yaw signs times ``yaw``."""
+
+    geometry: str
+    order: tuple[int, ...]
+    yaw: float
+
+    def rotors_said(self) -> str:
+        """``u1, u4, u3, u2``: the log's columns that are the geometry's rotors 1..n."""
+        inv = np.argsort(self.order)
+        return ", ".join(ROTORS[j] for j in inv)
+
+    def said(self, n: int) -> str:
+        same = self.order == tuple(range(n))
+        what = "the file's layout" if self.geometry == "file" else f"layout {self.geometry}"
+        if not same:
+            what += f" with its rotors 1..{n} in the log's {self.rotors_said()}"
+        return what + ("" if self.yaw > 0 else (" and" if not same else " with") + " the yaw signs reversed")
+
+
+def _standard(vehicle, geometry: str) -> np.ndarray:
+    """The rotor map of the standard layout ``geometry`` at the file's arm length, C_T and C_Q."""
+    from .rotors import PLUS_YAW_SIGNS, plus_positions, x_positions
+
+    r = vehicle.rotors
+    pos = {"plus": plus_positions, "x": x_positions}[geometry](float(np.max(np.hypot(*r.positions.T))))
+    return np.vstack([r.thrust_coeff * np.ones(4), r.thrust_coeff * pos[:, 1], -r.thrust_coeff * pos[:, 0],
+                      r.torque_coeff * np.array(PLUS_YAW_SIGNS)])
+
+
+def layout_readings(vehicle) -> tuple[list[LayoutReading], np.ndarray]:
+    """The vehicle file's rotor map first, then every other numbering and yaw convention of it and of the
+    standard layouts (plus, x) with four rotors, each distinct map once (the file's own reading kept)."""
+    B = vehicle.rotors.matrix
+    n = B.shape[1]
+    geometries = [("file", B)] + ([(g, _standard(vehicle, g)) for g in ("plus", "x")] if n == 4 else [])
+    readings, maps = [], []
+    scale = np.abs(B).max(axis=1, keepdims=True)
+    for g, M in geometries:
+        for order in itertools.permutations(range(n)):
+            for yaw in (1.0, -1.0):
+                m = M[:, list(order)] * np.array([1.0, 1.0, 1.0, yaw])[:, None]
+                if any(np.all(np.abs(m - q) <= 1e-6 * scale) for q in maps):
+                    continue
+                readings.append(LayoutReading(g, order, yaw)), maps.append(m)
+    return readings, np.stack(maps)
+
+
+def _jackknife_difference(a: LayoutStats, b: LayoutStats, map_a: np.ndarray, map_b: np.ndarray) -> float:
+    """Standard error (delete-one-block jackknife) of map ``b``'s summed correlation minus map ``a``'s, each
+    on its own lag's statistics over the same blocks: paired, as both read the same needed torque."""
+    ids = np.union1d(a.ids, b.ids)
+    a, b = a.on(ids), b.on(ids)
+    K = len(ids)
+    diff = np.empty(K)
+    tot_a, tot_b = (a.C.sum(0), a.d.sum(0), a.e.sum(0)), (b.C.sum(0), b.d.sum(0), b.e.sum(0))
+    for k in range(K):
+        ra = _correlations(tot_a[0] - a.C[k], tot_a[1] - a.d[k], tot_a[2] - a.e[k], map_a[None])[0].sum()
+        rb = _correlations(tot_b[0] - b.C[k], tot_b[1] - b.d[k], tot_b[2] - b.e[k], map_b[None])[0].sum()
+        diff[k] = rb - ra
+    return float(np.sqrt((K - 1) / K * np.sum((diff - diff.mean()) ** 2)))
+
+
+def _fix(reading: LayoutReading, vehicle, maps_row: np.ndarray) -> str:
+    """How to write the vehicle file (or the log) so that its rotor map is ``reading``'s."""
+    n = vehicle.rotors.n
+    if reading.geometry == "file":
+        if reading.order == tuple(range(n)):
+            return "flip every yaw_sign in the vehicle file's layout"
+        return "reorder u1..u4 to the vehicle file's rotor numbering (or fix the layout in the vehicle file)"
+    if reading.order == tuple(range(n)) and reading.yaw > 0:
+        return f"write layout: {reading.geometry} in the vehicle file"
+    ct, cq = vehicle.rotors.thrust_coeff, vehicle.rotors.torque_coeff
+    rotors = ", ".join(f"{{x: {-maps_row[2, j] / ct:.4g}, y: {maps_row[1, j] / ct:.4g}, "
+                       f"yaw_sign: {int(np.sign(maps_row[3, j] / cq))}}}" for j in range(n))
+    return f"write the layout as the log's rotors u1..u{n} in order: layout: [{rotors}]"
+
+
 def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
-    """Every numbering of the rotors and both yaw conventions, each at its best lag of the rotor stream
-    within ``MAX_LAG_S`` (a stamp offset is a clock's error, qr ingest estimates it, not a numbering); the
-    correlation is partial: in closed loop the rotors cancel aerodynamic torques (flapping, damping), which
-    can hide the numbering's own correlation (a flapping RotorPy flight: roll -0.25 without them)."""
+    """Every numbering of the file's rotors and of the standard layouts (plus, x), both yaw conventions,
+    each at its best lag of the rotor stream within ``MAX_LAG_S`` (a stamp offset is a clock's error, qr
+    ingest estimates it, not a numbering); the correlation is partial: in closed loop the rotors cancel
+    aerodynamic torques (flapping, damping), which can hide the numbering's own correlation (a flapping
+    RotorPy flight: roll -0.25 without them).
+
+    Another reading explains the torques clearly better when its summed correlation beats the file's by
+    ``Z_LAYOUT`` standard errors of two independent correlations (Fisher, a window's samples one), or, on
+    ``MIN_BLOCKS`` blocks or more, by ``Z_PAIRED`` of the paired difference's own (a block jackknife: both
+    read the same torque, so their difference varies far less than either) and ``MIN_LAYOUT_GAIN``.
+    A plus frame read as x loses about 30 % of each roll and pitch correlation (cos 45°): 0.25-0.4 in all
+    on the synthetic flights, 4-9 paired standard errors, within the Fisher rule's 0.42.  The reading must
+    explain roll and pitch both (each correlation 2 standard errors above zero)."""
     if sum(len(p) for p in pieces) < MIN_ROWS:
         return CheckResult("rotor_layout", True, "too few airborne samples to check the rotor layout")
     pairs = _torque_pairs(pieces, vehicle)
@@ -404,31 +522,49 @@ def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
     rows = sum(len(u) for u, _, _ in pairs)
     se = 1 / np.sqrt(max(rows / _window(step) - 3, 1.0))  # Fisher: a window's samples are one
     reach = int(round(MAX_LAG_S / step))
-    B = vehicle.rotors.matrix
-    n = B.shape[1]
-    candidates = [(order, yaw) for order in itertools.permutations(range(n)) for yaw in (1.0, -1.0)]
-    maps = np.stack([B[:, list(order)] * np.array([1.0, 1.0, 1.0, yaw])[:, None] for order, yaw in candidates])
-    best = None  # per candidate: its correlations at its best lag
+    readings, maps = layout_readings(vehicle)
+    best, stats_of, lag_of = None, {}, None  # per reading: its correlations at its best lag
     for lag in range(-reach, reach + 1, max(1, reach // 6)):
-        c = _correlations(*_partial(pairs, lag), maps)
-        best = c if best is None else np.where((c.sum(axis=1) > best.sum(axis=1))[:, None], c, best)
-    written = best[0]
-    measured = ("the rotor torque's partial correlation with the torque the attitude needs is "
-                + ", ".join(f"{c:.2f}" for c in written) + f" in roll, pitch, yaw (s.e. {se:.2f})")
-    i = max(range(1, len(candidates)), key=lambda j: best[j].sum())
-    (order, yaw), c = candidates[i], best[i]
-    if c.sum() - written.sum() > Z_LAYOUT * se * np.sqrt(3):
-        if order == tuple(range(n)):
-            mistake = "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"
-            fix = "flip every yaw_sign in the vehicle file's layout"
+        st = LayoutStats.of(*_partial(pairs, lag, step))
+        stats_of[lag] = st
+        c = _correlations(st.C.sum(0), st.d.sum(0), st.e.sum(0), maps)
+        if best is None:
+            best, lag_of = c, np.full(len(c), lag)
         else:
-            cols = ", ".join(ROTORS[i] for i in order)
-            mistake = f"the rotor columns look numbered differently: the layout's rotors 1..{n} are the log's {cols}"
-            mistake += "" if yaw > 0 else ", with the yaw signs reversed"
-            fix = "reorder u1..u4 to the vehicle file's rotor numbering (or fix the layout in the vehicle file)"
-        return CheckResult("rotor_layout", False,
-                           measured + "; read so, " + ", ".join(f"{x:.2f}" for x in c), mistake, fix)
-    return CheckResult("rotor_layout", True, measured)
+            better = c.sum(axis=1) > best.sum(axis=1)
+            best, lag_of = np.where(better[:, None], c, best), np.where(better, lag, lag_of)
+    written = best[0]
+    # the best other reading, ties within numerical noise to the earlier (the same on every machine)
+    i = min(range(1, len(readings)), key=lambda j: (-rank_key(float(best[j].sum())), j))
+    other, c = readings[i], best[i]
+    diff = float(c.sum() - written.sum())
+    blocks = len(np.union1d(stats_of[lag_of[0]].ids, stats_of[lag_of[i]].ids))
+    paired = _jackknife_difference(stats_of[lag_of[0]], stats_of[lag_of[i]], maps[0], maps[i]) \
+        if blocks >= MIN_BLOCKS else float("nan")
+    fmt = lambda x: ", ".join(f"{v:.2f}" for v in x)  # noqa: E731
+    n = vehicle.rotors.n
+    measured = (f"the rotor torque's partial correlation with the torque the attitude needs is {fmt(written)} in "
+                f"roll, pitch, yaw (s.e. {se:.2f}) with the file's layout; the best other reading, "
+                f"{other.said(n)}, gives {fmt(c)} (summed {diff:+.2f}"
+                + (f", paired s.e. {paired:.2f}" if paired == paired else "") + ")")
+    m = Margins()
+    beaten = m.at_least(diff, Z_LAYOUT * se * np.sqrt(3), on_edge=False) or (
+        paired == paired and m.at_least(diff, max(Z_PAIRED * paired, MIN_LAYOUT_GAIN), on_edge=False))
+    # a rotor map drives roll and pitch alike: a reading that explains one of them only is no layout (a log
+    # whose rotor-1 speed reads 0 half the time: the brushed jana33, roll 0.71, pitch 0.03)
+    beaten = beaten and all(m.at_least(float(x), 2 * se, on_edge=False) for x in c[:2])
+    if not beaten:
+        return CheckResult("rotor_layout", True, measured + ": the file's layout fits")
+    if other.geometry == "file" and other.order == tuple(range(n)):
+        mistake = "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"
+    elif other.geometry == "file":
+        mistake = f"the rotor columns look numbered differently: the layout's rotors 1..{n} are the log's " \
+                  f"{other.rotors_said()}" + ("" if other.yaw > 0 else ", with the yaw signs reversed")
+    else:
+        written_said = vehicle.raw.get("layout") if isinstance(vehicle.raw.get("layout"), str) else "its listed rotors"
+        mistake = f"the rotor torques look like {other.said(n)}, not the vehicle file's layout ({written_said})"
+    return CheckResult("rotor_layout", False, measured + ": that reading fits clearly better", mistake,
+                       _fix(other, vehicle, maps[i]))
 
 
 RUNNERS = {"thrust_axis": check_thrust_axis, "gyro": check_gyro, "rotor_layout": check_rotor_layout}
@@ -444,14 +580,16 @@ def check(df: pd.DataFrame, vehicle, skip=()) -> list[CheckResult]:
     return [RUNNERS[name](pieces, vehicle) for name in todo]
 
 
-def require(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = "diagnose.skip_checks=[{name}]"
-            ) -> list[CheckResult]:
+def require(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = "diagnose.skip_checks=[{name}]",
+            vehicle_file=None) -> list[CheckResult]:
     """``check``, refusing the log (one line: the likely mistake and its fix) at the first failure;
-    ``how_to_skip``: the setting that turns a check off, as the user writes it (``{name}``: the check)."""
+    ``how_to_skip``: the setting that turns a check off, as the user writes it (``{name}``: the check);
+    ``vehicle_file``: the user's vehicle file, named in a fix that is a command."""
     results = check(df, vehicle, skip)
     for r in results:
         if not r.passed:
+            fix = r.fix.replace("{log}", str(path)).replace("{vehicle}", str(vehicle_file or "VEHICLE.yaml"))
             raise QrInputError(path, f"{r.mistake} ({r.measured})",
-                               f"{r.fix}; or, if the log is right, skip this check with "
+                               f"{fix}; or, if the log is right, skip this check with "
                                + how_to_skip.format(name=r.name))
     return results

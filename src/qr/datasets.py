@@ -122,12 +122,6 @@ def features(signals, inputs) -> np.ndarray:
     return np.hstack([group_values(signals, g) for g in check_inputs(inputs)])
 
 
-def targets(signals, vehicle, target: str) -> np.ndarray:
-    """Residual labels (N, 3): ``f_a`` (eq. 4.34) or ``tau_a`` (eq. 4.39), body frame."""
-    y = residuals(signals, vehicle)
-    return y[:, :3] if check_target(target) == "f_a" else y[:, 3:]
-
-
 def flight_table(states: pd.DataFrame, vehicle, flight: str) -> pd.DataFrame:
     """Learning-table rows of one filtered flight (a state table, ``qr.states``): its airborne rows.
 

@@ -39,12 +39,6 @@ def residual_force(a_b: np.ndarray, R: np.ndarray, u: np.ndarray, vehicle) -> np
     return vehicle.mass * a_b - nominal_force(R, T, vehicle.mass)
 
 
-def residual_torque(alpha: np.ndarray, omega: np.ndarray, u: np.ndarray, vehicle) -> np.ndarray:
-    """``τ_a`` (eq. 4.39), N m, body frame."""
-    _, Gamma = thrust_torque(u, vehicle)
-    return alpha * vehicle.inertia - nominal_torque(omega, Gamma, vehicle.inertia)
-
-
 def residuals(s, vehicle) -> np.ndarray:
     """``[f_a, τ_a]`` (N, 6) from a :class:`qr.effects.Signals`.
 

@@ -19,7 +19,7 @@ import numpy as np
 from .allowed import is_number
 from .errors import QrInputError
 from .frames import GRAVITY, skew
-from .rotors import HOVER_RATIO_LIMITS
+from .rotors import HOVER_RATIO_LIMITS, SPEED_UNIT_NAMES
 
 
 def _as_slice(idx):
@@ -256,6 +256,43 @@ def _blade_flapping(s, v):
     return D
 
 
+def hub_positions(vehicle) -> np.ndarray:
+    """(n, 3) m: each rotor hub from the CG, the layout's x, y and the vehicle file's ``hub_z``."""
+    pos = vehicle.rotors.positions
+    return np.column_stack([pos, np.full(len(pos), vehicle.hub_z)])
+
+
+def hub_airspeeds(s, vehicle) -> np.ndarray:
+    """(N, n, 3): each hub's airspeed ``v_b + ω × r_i`` (body frame)."""
+    r = hub_positions(vehicle)
+    return s.v_b[:, None, :] + np.cross(s.omega[:, None, :], r[None, :, :])
+
+
+def _rotor_drag_moment(s, v):
+    # the moment about the CG of each hub's H-force -u_i [w_ix, w_iy, 0], per unit k
+    r = hub_positions(v)
+    w = hub_airspeeds(s, v)
+    u = np.sqrt(np.maximum(s.u2_torque, 0.0))  # the torque rows' (attitude-matched) rotor signal
+    H = np.zeros_like(w)
+    H[..., 0] = -u * w[..., 0]
+    H[..., 1] = -u * w[..., 1]
+    D = _zeros(s, 1)
+    D[:, 3:6, 0] = np.cross(r[None, :, :], H).sum(axis=1)
+    return D
+
+
+def _translational_lift(s, v):
+    # each rotor's extra thrust w_ix² + w_iy² per unit k, at its hub (force along body z, r_i × that)
+    r = hub_positions(v)
+    w = hub_airspeeds(s, v)
+    extra = w[..., 0] ** 2 + w[..., 1] ** 2  # (N, n)
+    D = _zeros(s, 1)
+    D[:, 2, 0] = extra.sum(axis=1)
+    D[:, 3, 0] = extra @ r[:, 1]
+    D[:, 4, 0] = -(extra @ r[:, 0])
+    return D
+
+
 F, TQ, ALL = (0, 1, 2), (3, 4, 5), (0, 1, 2, 3, 4, 5)
 CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("linear_drag", ("kx", "ky", "kz"), ("N s/m",) * 3, (0, 0, 0), _linear_drag, F,
@@ -306,7 +343,38 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("blade_flapping", ("k",), ("N m s/m",), (0,), _blade_flapping, (3, 4),
            doc="torque k [v_by, -v_bx, 0]",
            meaning="the rotor disks tilt against the airflow: a roll/pitch moment growing with the body velocity"),
+    Effect("rotor_drag_moment", ("k",), ("N s/m per rotor-speed unit",), (0,), _rotor_drag_moment, TQ,
+           doc="torque Σ r_i × (-k u_i [w_ix, w_iy, 0]), w_i = v_b + ω × r_i (hub airspeed)",
+           meaning="the moment of the rotors' drag at their hubs: a yaw-rate damping (and, with the hubs above "
+                   "the CG, a roll/pitch moment growing with the body velocity)"),
+    Effect("translational_lift", ("k",), ("N s^2/m^2",), (0,), _translational_lift, (2, 3, 4),
+           doc="rotor i thrust + k (w_ix² + w_iy²), w_i = v_b + ω × r_i, through the layout",
+           meaning="each rotor's thrust grows with the square of its edgewise airspeed (translational lift)"),
 ]}
+
+def _rate_damping(s, v):
+    D = _zeros(s, 3)
+    for j in range(3):
+        D[:, 3 + j, j] = -s.omega[:, j]
+    return D
+
+
+# Terms outside the catalog that checks fit beside a named effect, never named themselves
+# (qr.diagnose.coefficients: an inertia factor that a rate damping takes is no statement about J)
+CHECK_TERMS: dict[str, Effect] = {e.name: e for e in [
+    Effect("rate_damping", ("cx", "cy", "cz"), ("N m s",) * 3, (0, 0, 0), _rate_damping, TQ,
+           doc="torque -diag(c) ω", meaning="a torque opposing the body rate (not a catalog effect: checks only)"),
+]}
+
+
+def lookup(name: str) -> Effect:
+    """A catalog effect, or a check term (``CHECK_TERMS``)."""
+    return CATALOG[name] if name in CATALOG else CHECK_TERMS[name]
+
+
+# Effects that are the force and the moment of one physical term: named together they share one parameter
+# vector (the spec: rotor_drag and rotor_drag_moment are one rotor drag's force and moment).
+TIED = (("rotor_drag", "rotor_drag_moment"),)
 
 
 MAX_DELAY_S = 0.1  # longest plausible actuator delay (s); also bounds the diagnosis's exact-delay search
@@ -328,7 +396,10 @@ def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
         "linear_drag": ([0, 0, 0], [20 * m] * 3),  # drag opposes motion; time constant >= 0.05 s
         "quadratic_drag": ([0, 0, 0], [20 * m] * 3),
         "rotor_drag": ([0], [20 * m / hover_speed_sum]),
-        "wind_force": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
+        "rotor_drag_moment": ([0], [20 * m / hover_speed_sum]),  # rotor_drag's: named together, one k
+        # a horizontal wind up to the weight (held at 45° of tilt; a wind tunnel's 12 m/s pushes a 2.65 kg
+        # quadrotor with 60 % of it), a vertical one to half of it
+        "wind_force": ([-mg, -mg, -0.5 * mg], [mg, mg, 0.5 * mg]),
         "body_force_bias": ([-0.5 * mg] * 3, [0.5 * mg] * 3),
         # a C_T or mass off by more than the rotor-speed check allows (thrust/m g in HOVER_RATIO_LIMITS) is
         # refused as a unit error before any diagnosis
@@ -346,8 +417,11 @@ def plausible_bounds(name: str, vehicle) -> tuple[np.ndarray, np.ndarray]:
         "actuator_delay": ([0], [MAX_DELAY_S]),
         "marker_offset": ([-2 * arm] * 3, [2 * arm] * 3),
         "blade_flapping": ([-20 * m * arm], [20 * m * arm]),
+        # more thrust in edgewise flow; four rotors' 4 k v² held to the quadratic drag's 20 m v²
+        "translational_lift": ([0], [5 * m]),
     }
-    lo, hi = table.get(name, ([-inf] * len(CATALOG[name].params), [inf] * len(CATALOG[name].params)))
+    n = len(lookup(name).params)
+    lo, hi = table.get(name, ([-inf] * n, [inf] * n))
     return np.array(lo, float), np.array(hi, float)
 
 
@@ -357,6 +431,34 @@ def get(name: str, path=None) -> Effect:
         raise QrInputError(path, f"unknown effect '{name}'" + (f" (did you mean '{close[0]}'?)" if close else ""),
                            f"use one of {', '.join(CATALOG)}")
     return CATALOG[name]
+
+
+DIMENSIONLESS = "-"  # a catalog unit: the parameter is a ratio or a fraction (a value is printed bare)
+
+
+def unit(name: str, param: str, vehicle=None) -> str:
+    """The unit of effect ``name``'s parameter ``param`` (:data:`DIMENSIONLESS` for a ratio; "" where the
+    catalog has no such parameter), the "rotor-speed unit" as the vehicle's where one is given."""
+    eff = CATALOG.get(name)
+    if eff is None or param not in eff.params:
+        return ""
+    u = eff.units[eff.params.index(param)]
+    if vehicle is not None:
+        u = u.replace("rotor-speed unit", SPEED_UNIT_NAMES.get(vehicle.rotor_speed_unit, vehicle.rotor_speed_unit))
+    return u
+
+
+def with_unit(name: str, param: str, value: float, fmt: str = ".4g", vehicle=None) -> str:
+    """``'0.3 N s/m'``: a parameter's value followed by its unit (bare for a ratio)."""
+    u = unit(name, param, vehicle)
+    return f"{value:{fmt}}" + ("" if u in ("", DIMENSIONLESS) else f" {u}")
+
+
+def effects_with_units(effects: list[dict], vehicle=None) -> str:
+    """``'linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); thrust_gain(gain=1.02)'``: each value with its unit
+    (read back by :func:`qr.report.overview.parse_named`)."""
+    return "; ".join(f"{e['name']}(" + ", ".join(f"{k}={with_unit(e['name'], k, v, '.4g', vehicle)}"
+                                                 for k, v in e["parameters"].items()) + ")" for e in effects)
 
 
 def parameter_ranges(eff: Effect, vehicle=None) -> str:

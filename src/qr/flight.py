@@ -30,6 +30,9 @@ REQUIRED = ["t", *POSITION, *QUATERNION, *ROTORS]
 ACCEL = ["ax", "ay", "az"]  # accelerometer: specific force, body frame, m/s²
 GYRO = ["gx", "gy", "gz"]  # gyro: body rate, rad/s
 OPTIONAL = [*ACCEL, *GYRO, "vbat"]
+VELOCITY = ["vx", "vy", "vz"]  # a world-frame velocity some exports carry (not a spec column: carried along)
+# the frames a CSV may be written in (qr ingest --frame): world / body
+FRAMES = {"enu-flu": "ENU world, FLU body (docs/spec/flight-log.md)", "ned-frd": "NED world, FRD body (PX4's)"}
 QUAT_NORM_TOL = 0.05  # |‖q‖ - 1| above this is not a rounding error
 
 
@@ -338,29 +341,67 @@ def check_hover_ratio(df, vehicle, path=None):
     if not np.isnan(ratio) and not lo <= ratio <= hi:
         unit = vehicle.rotor_speed_unit
         other = "rad_s" if unit == "rpm" else "rpm"
-        # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
-        factor = (SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]) ** 2
-        hint = ""
-        if lo <= ratio * factor <= hi:
-            hint = f"the speeds look like {other}, not {unit}:"
         if vehicle.rotor_input == "command" and np.nanmax(np.abs(df[ROTORS].to_numpy(dtype=float))) <= 1.01:
             raise _error(path, "u1..u4 look like motor commands, not rotor speeds",
                          "convert them first: qr ingest FLIGHT --vehicle V.yaml --out flight.csv (the vehicle's "
                          "command_map gives the equivalent rotor speeds)")
-        raise _error(path, f"rotor speeds give a median thrust of {ratio:.3g} x m g "
-                           f"(plausible: {lo:.2f}-{hi:.0f}); a unit or coefficient error",
-                     f"{hint + ' ' if hint else ''}check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "
-                     f"and that u1..u4 are rotor speeds")
+        # speeds logged in the other unit: rescaling them to the declared unit rescales T by this
+        factor = (SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]) ** 2
+        problem = (f"rotor speeds give a median thrust of {ratio:.3g} x m g (plausible: {lo:.2f}-{hi:.0f}); a unit "
+                   "or coefficient error")
+        if lo <= ratio * factor <= hi:
+            raise _error(path, problem, other_speed_unit_fix(vehicle))
+        raise _error(path, problem, f"check rotor_speed_unit ({unit}) and thrust_coeff in the vehicle file, "
+                                    f"and that u1..u4 are rotor speeds")
+
+
+def other_speed_unit_fix(vehicle) -> str:
+    """The whole fix for rotor speeds logged in the other unit than the vehicle file's: convert the log, or
+    switch the file's unit *and* its coefficients (C_T and C_Q are per unit², so they scale by the square)."""
+    unit = vehicle.rotor_speed_unit
+    other = "rad_s" if unit == "rpm" else "rpm"
+    k = SPEED_IN_RPM[other] / SPEED_IN_RPM[unit]  # one `other` in `unit`s
+    per = "60/2π" if other == "rad_s" else "2π/60"
+    return (f"the speeds look like {other}, not {unit}: either multiply u1..u4 by {per} = {k:.6g} "
+            f"(to {unit}), or set rotor_speed_unit: {other} in the vehicle file together with "
+            f"thrust_coeff: {vehicle.thrust_coeff * k**2:.6g} and torque_coeff: {vehicle.torque_coeff * k**2:.6g} "
+            f"(C_T and C_Q are per unit², so both x ({per})² = {k**2:.6g}: now {vehicle.thrust_coeff:.6g} and "
+            f"{vehicle.torque_coeff:.6g})")
 
 
 def write_flight(df: pd.DataFrame, path: str | Path) -> None:
-    """Write CSV (``.csv``) or Parquet (``.parquet``) atomically."""
+    """Write CSV (``.csv``) or Parquet (``.parquet``) atomically, every value read back to the bit: the CSV
+    holds each float's shortest round-trip decimal (an epoch stamp, ~1.7e9 s, keeps its microseconds)."""
     path = Path(path)
     with atomic_path(path) as tmp:
         if path.suffix == ".parquet":
             df.to_parquet(tmp, index=False)
         else:
-            df.to_csv(tmp, index=False, float_format="%.9g")
+            df.to_csv(tmp, index=False, float_format=None)
+
+
+def to_spec_frames(df: pd.DataFrame, frame: str, path=None) -> pd.DataFrame:
+    """A flight written in ``frame`` (:data:`FRAMES`) in the spec's ENU world / FLU body: positions,
+    velocity (``vx, vy, vz``, where all three are there), attitude (:func:`qr.frames.from_ned_frd`), gyro and
+    accelerometer (their y and z negated, each column that is there); every other column as it was."""
+    if frame not in FRAMES:
+        raise _error(path, f"unknown frame '{frame}'", f"use one of {', '.join(FRAMES)}")
+    if frame == "enu-flu":
+        return df
+    from .frames import NED_TO_ENU, from_ned_frd
+
+    out = df.copy()
+    out[POSITION], out[QUATERNION] = from_ned_frd(df[POSITION].to_numpy(float), df[QUATERNION].to_numpy(float))
+    given = [c for c in VELOCITY if c in df]
+    if given and len(given) < 3:
+        raise _error(path, f"the velocity has {', '.join(given)} but not {', '.join(sorted(set(VELOCITY) - set(given)))}",
+                     "give vx, vy, vz together (a NED velocity is converted as a whole), or none")
+    if given:
+        out[VELOCITY] = df[VELOCITY].to_numpy(float) @ NED_TO_ENU.T
+    for c in ("ay", "az", "gy", "gz"):  # FRD -> FLU body: y and z turn over, x stays
+        if c in df:
+            out[c] = -df[c].to_numpy(float)
+    return out
 
 
 def dropouts(df: pd.DataFrame) -> dict:

@@ -13,7 +13,6 @@ import numpy as np
 
 G = 9.81
 GRAVITY = np.array([0.0, 0.0, -G])
-E3 = np.array([0.0, 0.0, 1.0])
 
 
 def rotation(q: np.ndarray):
@@ -102,20 +101,6 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([z, -w, y], -1),
                      np.stack([w, z, -x], -1),
                      np.stack([-y, x, z], -1)], -2)
-
-
-def so3_exp(phi: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (eq. 4.11)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(phi).as_matrix()
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector of a rotation matrix (eqs. 4.13-4.14)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).as_rotvec()
 
 
 def to_body(R: np.ndarray, v_w: np.ndarray) -> np.ndarray:

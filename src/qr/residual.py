@@ -86,7 +86,8 @@ def features(inputs, v_b, omega, g_b, u, rotor_speed_scale: float) -> np.ndarray
 
 
 def forward(res: Residual, phi: np.ndarray) -> np.ndarray:
-    """The wrench (N, 6) for features ``φ`` (N, d): the reference the compiled plant is tested against."""
+    """The wrench (N, 6) for features ``φ`` (N, d) in NumPy: the recorded size (:func:`rms_size`) and the
+    exports' statement of it (qr.export.mapping); the compiled plant evaluates the same network."""
     z = (np.atleast_2d(phi) - res.input_mean) / res.input_scale
     for k, (W, b) in enumerate(zip(res.weights, res.biases)):
         z = z @ W.T + b
@@ -112,15 +113,44 @@ def pack(res: Residual) -> np.ndarray:
 
 # ---- the vehicle file's block ------------------------------------------------------------------
 
-def block(res: Residual, model_file: str, note: str) -> dict:
-    """The vehicle file's ``residual`` mapping (``model_file``: the .npz, relative to the YAML)."""
+def block(res: Residual, model_file: str, note: str, size: dict | None = None) -> dict:
+    """The vehicle file's ``residual`` mapping (``model_file``: the .npz, relative to the YAML; ``size``: its
+    RMS over the training flights, :func:`rms_size`, which ``qr export`` states where a simulator lacks it)."""
     r = lambda a: [float(f"{x:.17g}") for x in np.asarray(a, float)]  # noqa: E731  (every digit: same model)
     return {"model": model_file, "format": FORMAT, "inputs": list(ordered(res.inputs)),
             "features": feature_names(res.inputs), "outputs": list(OUTPUTS), "activation": res.activation,
             "layers": res.layers,
             "scaling": {"rotor_speed_scale": float(res.rotor_speed_scale), "input_mean": r(res.input_mean),
                         "input_scale": r(res.input_scale), "output_scale": r(res.output_scale)},
+            **({"size": size} if size is not None else {}),
             "note": note}
+
+
+def rms_size(res: Residual, v_b, omega, g_b, u, flights) -> dict:
+    """The wrench's RMS (force N, torque N m: of the vector's length and per body axis) over the states
+    ``v_b, omega, g_b`` (N, 3) and rotor speeds ``u`` (N, 4) of the named training ``flights``."""
+    w = forward(res, features(res.inputs, v_b, omega, g_b, u, res.rotor_speed_scale))
+    rms = lambda a: float(np.sqrt(np.mean(a * a))) if len(a) else 0.0  # noqa: E731
+    six = lambda x: float(f"{x:.6g}")  # noqa: E731
+    return {"rms_force": six(rms(np.linalg.norm(w[:, :3], axis=1))),
+            "rms_torque": six(rms(np.linalg.norm(w[:, 3:], axis=1))),
+            "rms_force_xyz": [six(rms(w[:, k])) for k in range(3)],
+            "rms_torque_xyz": [six(rms(w[:, k])) for k in range(3, 6)],
+            "samples": int(len(w)), "flights": [str(f) for f in flights],
+            "over": "every sample of the training windows: the filter's estimated states, the rotor speeds acting"}
+
+
+def recorded_size(raw_block) -> dict | None:
+    """The block's ``size`` (:func:`rms_size`) if it is one (a file from before the record has none)."""
+    size = raw_block.get("size") if isinstance(raw_block, dict) else None
+    try:
+        ok = (all(math.isfinite(float(size[k])) for k in ("rms_force", "rms_torque"))
+              and all(len(size[k]) == 3 and all(math.isfinite(float(x)) for x in size[k])
+                      for k in ("rms_force_xyz", "rms_torque_xyz"))
+              and isinstance(size["flights"], list) and int(size["samples"]) >= 0)
+    except (TypeError, KeyError, ValueError):
+        return None
+    return size if ok else None
 
 
 def save_weights(res: Residual, path) -> None:

@@ -38,10 +38,6 @@ def _groups() -> list[str]:
     return list(GROUPS)
 
 
-def _activations() -> list[str]:
-    return list(ACTIVATIONS)
-
-
 @dataclass
 class LossWeights:
     KEY: ClassVar[str] = "learn.signal_weights"

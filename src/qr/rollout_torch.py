@@ -20,9 +20,9 @@ import torch
 
 from .frames import G
 from .residual import GROUPS, ORDER
-from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_GE, P_GZ, P_J,
-                        P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDRAG, P_REM, P_REM_ON, P_SCALE, P_TBIAS, P_UHOVER,
-                        P_WIND)
+from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_GE, P_GZ, P_HUB,
+                        P_J, P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_SCALE, P_TBIAS,
+                        P_TLIFT, P_UHOVER, P_WIND)
 
 DTYPE = torch.float64
 
@@ -149,6 +149,10 @@ class Plant:
         self.flap = torch.stack([torch.stack([zero, -k, zero]), torch.stack([k, zero, zero]),
                                  torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = k (v_y, −v_x, 0)
         self.tbias, self.wind, self.mass, self.J = P[P_TBIAS:P_TBIAS + 3], P[P_WIND:P_WIND + 3], P[P_MASS], P[P_J:P_J + 3]
+        # the hubs (from the CG) where the rotor drag's H-force and translational lift act, where the plant has them
+        self.hubs = P.requires_grad or float(P[P_RDM].detach()) != 0.0 or float(P[P_TLIFT].detach()) != 0.0
+        self.rdm, self.tlift = P[P_RDM], P[P_TLIFT]
+        self.r = P[P_HUB:P_HUB + 12].reshape(4, 3) - torch.nn.functional.pad(P[P_CG:P_CG + 2], (0, 1))
         self.rem = P[P_REM:P_REM + 33].reshape(3, 11).T if float(P[P_REM_ON].detach()) != 0.0 else None
         self.uh = P[P_UHOVER]
         self.residual, self.frozen = residual, frozen
@@ -165,6 +169,13 @@ class Plant:
             T = T + self.ge * T / torch.clamp(h, min=MIN_GROUND_HEIGHT) ** 2
         f = f + torch.nn.functional.pad(T, (2, 0))
         t = W[:, 1:] + W[:, :1] * self.cg + self.tbias + v_b @ self.flap
+        if self.hubs:  # qr.sim.plant: H-force -k u_i [w_x, w_y, 0] and lift k_l (w_x² + w_y²) at hub r_i
+            w_hub = v_b[:, None, :] + torch.linalg.cross(w[:, None, :].expand(-1, 4, -1), self.r.expand(len(w), -1, -1))
+            wxy = w_hub * _XY
+            lift = self.tlift * (wxy * wxy).sum(-1, keepdim=True)  # (B, 4, 1)
+            F_hub = -self.rdm * u[:, :, None] * wxy + torch.nn.functional.pad(lift, (2, 0))
+            t = t + torch.linalg.cross(self.r.expand(len(w), -1, -1), F_hub).sum(1)
+            f = f + torch.nn.functional.pad(lift.sum(1), (2, 0))
         if self.rem is not None:  # the learned torque remainder (qr.torque_remainder), a linear map
             phi = torch.cat([v_b, w, (u / self.uh) ** 2 - 1.0, torch.ones_like(T)], -1)
             t = t + phi @ self.rem

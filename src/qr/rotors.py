@@ -1,4 +1,4 @@
-"""The rotor map: rotor speeds -> thrust and body torques, and its inverse.
+"""The rotor map: rotor speeds -> thrust and body torques.
 
 One matrix ``B`` (4 x 4) maps squared rotor speeds to ``[T, Γx, Γy, Γz]``::
 
@@ -31,6 +31,7 @@ PLUS_YAW_SIGNS = (-1.0, 1.0, -1.0, 1.0)
 # the rotor map's median airborne thrust over the weight, m g, that a log may show: beyond it the speeds
 # are in another unit or the coefficients are wrong (qr.flight refuses the log; the thrust effects stop there)
 HOVER_RATIO_LIMITS = (1 / 3, 3.0)
+SPEED_UNIT_NAMES = {"rpm": "rpm", "rad_s": "rad/s"}  # a vehicle file's rotor_speed_unit as a reader writes it
 
 
 LAYOUTS = ("plus", "x")  # the named layouts (the rest: an explicit list of rotors)
@@ -113,11 +114,6 @@ class RotorMap:
         x, y = self.positions[:, 0], self.positions[:, 1]
         return np.vstack([ct * np.ones(self.n), ct * y, -ct * x, np.zeros(self.n)])
 
-    def speeds_for(self, wrench: np.ndarray, u_min: float = 0.0, u_max: float = np.inf) -> np.ndarray:
-        """Inverse map: rotor speeds that produce ``[T, Γx, Γy, Γz]``, clipped to limits."""
-        u2 = np.linalg.solve(self.matrix, np.asarray(wrench, dtype=float).T).T
-        u2 = np.clip(u2, u_min**2, u_max**2)
-        return np.sqrt(u2)
 
 
 @dataclass(frozen=True)

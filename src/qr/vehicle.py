@@ -2,7 +2,8 @@
 
 The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project adds
 (never required of outside files): ``ground_z`` (m, height of the floor in the
-log's world frame), ``rotor_speed_min`` / ``rotor_speed_max`` and
+log's world frame), ``hub_z`` (m, height of the rotor hubs above the CG along body z: the rotor drag's
+lever arm, docs/spec/diagnosis.md), ``rotor_speed_min`` / ``rotor_speed_max`` and
 ``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
 ``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
 ``torque_remainder`` (:mod:`qr.torque_remainder`), ``residual`` (a learned wrench,
@@ -31,7 +32,7 @@ from .shipped import shipped_vehicles, vehicle_file
 REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit", "layout")
 SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
-OPTIONAL_DEFAULTS = {"ground_z": 0.0, "motor_time_constant": 0.03}
+OPTIONAL_DEFAULTS = {"ground_z": 0.0, "hub_z": 0.0, "motor_time_constant": 0.03}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
                          "description", "source", "torque_remainder", "residual", "rotor_input", "command_map"} \
     | set(OPTIONAL_DEFAULTS)
@@ -63,6 +64,11 @@ class Vehicle:
     @property
     def ground_z(self) -> float:
         return float(self.raw.get("ground_z", OPTIONAL_DEFAULTS["ground_z"]))
+
+    @property
+    def hub_z(self) -> float:
+        """Height of the rotor hubs above the CG (m, body z; 0: in the CG's plane)."""
+        return float(self.raw.get("hub_z", OPTIONAL_DEFAULTS["hub_z"]))
 
     @property
     def motor_time_constant(self) -> float:
@@ -204,9 +210,15 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
                            "check rotor positions and yaw signs (two of each sign, not collinear)")
     if "rotor_speed_max" in raw:
         _number(path, raw, "rotor_speed_max")
-    for k in ("ground_z", "motor_time_constant", "rotor_speed_min"):
+    for k in ("ground_z", "hub_z", "motor_time_constant", "rotor_speed_min"):
         if k in raw:
             _number(path, raw, k, positive=k == "motor_time_constant", minimum=0 if k == "rotor_speed_min" else None)
+    if "hub_z" in raw:
+        arm_max = float(np.max(np.hypot(*rotors.positions.T)))
+        if abs(float(raw["hub_z"])) > 2 * arm_max:
+            raise QrInputError(path, f"hub_z is {raw['hub_z']!r} m, more than twice the largest rotor distance "
+                                     f"({arm_max:g} m) from the CG",
+                               "give the hubs' height above the CG in metres (0 when they sit in the CG's plane)")
     _check_rotor_input(path, raw, warn_)
     unknown = sorted(set(map(str, raw)) - KNOWN)
     if unknown:

@@ -425,3 +425,49 @@ def test_synth_high_dropout_ends_and_keeps_first_and_last_rows(tmp_path, capsys)
 def test_synth_effect_parameters(spec, phrases, tmp_path, capsys):
     assert_rejected(capsys, tmp_path, ["synth", "--vehicle", HB, "--duration", "5", "--effect", spec],
                     "--effect: ", *phrases)
+
+
+@pytest.mark.parametrize("file_unit", ["rpm", "rad_s"])
+def test_the_other_speed_unit_hint_gives_the_whole_fix(file_unit, tmp_path, capsys):
+    """Speeds logged in the other unit: the hint's coefficients are the file's x (60/2π)² (or its inverse), and
+    either fix it names makes the flight pass with the thrust it should have."""
+    import re
+
+    import yaml
+
+    from qr.flight import hover_ratio, read_flight
+    from qr.vehicle import load_vehicle
+
+    raw = yaml.safe_load(HB.read_text())
+    k = 60 / (2 * np.pi) if file_unit == "rpm" else 2 * np.pi / 60  # one unit of the other, in the file's
+    df = _flight()
+    if file_unit == "rad_s":  # the same vehicle, its file in rad/s: C_T and C_Q per (rad/s)²
+        rpm2 = (60 / (2 * np.pi))**2  # (rpm per rad/s)²
+        raw.update(rotor_speed_unit="rad_s", thrust_coeff=raw["thrust_coeff"] * rpm2,
+                   torque_coeff=raw["torque_coeff"] * rpm2)
+        df[["u1", "u2", "u3", "u4"]] *= 2 * np.pi / 60
+    vfile = tmp_path / "v.yaml"
+    vfile.write_text(yaml.safe_dump(raw))
+    good = hover_ratio(df, load_vehicle(vfile))
+    wrong = df.assign(**{u: df[u] / k for u in ["u1", "u2", "u3", "u4"]})  # logged in the other unit
+    path = _csv(tmp_path, wrong)
+    line = assert_rejected(capsys, tmp_path, ["ingest", path, "--vehicle", vfile], "unit or coefficient error")
+    other = "rad_s" if file_unit == "rpm" else "rpm"
+    assert f"the speeds look like {other}, not {file_unit}" in line, line
+    m = re.search(rf"multiply u1..u4 by \S+ = (\S+) .*set rotor_speed_unit: {other} in the vehicle file together "
+                  r"with thrust_coeff: (\S+) and torque_coeff: (\S+) \(C_T and C_Q are per unit², so both x \(\S+\)² = "
+                  r"(\S+): now (\S+) and (\S+)\)", line)
+    assert m, line
+    scale, ct, cq, k2, ct0, cq0 = map(float, m.groups())
+    assert scale == pytest.approx(k, rel=1e-5) and k2 == pytest.approx(k**2, rel=1e-5)
+    assert ct == pytest.approx(raw["thrust_coeff"] * k**2, rel=1e-5)
+    assert cq == pytest.approx(raw["torque_coeff"] * k**2, rel=1e-5)
+    assert (ct0, cq0) == (pytest.approx(raw["thrust_coeff"], rel=1e-5), pytest.approx(raw["torque_coeff"], rel=1e-5))
+    # the file switched as the hint says: the log passes with the thrust of the right units
+    fixed = tmp_path / "fixed.yaml"
+    fixed.write_text(yaml.safe_dump({**raw, "rotor_speed_unit": other, "thrust_coeff": ct, "torque_coeff": cq}))
+    veh = load_vehicle(fixed)
+    assert hover_ratio(read_flight(path, veh), veh) == pytest.approx(good, rel=1e-5)
+    # ... or the log converted: the same
+    assert hover_ratio(wrong.assign(**{u: wrong[u] * scale for u in ["u1", "u2", "u3", "u4"]}),
+                       load_vehicle(vfile)) == pytest.approx(good, rel=1e-5)

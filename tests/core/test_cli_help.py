@@ -26,7 +26,7 @@ def test_help_lists_every_command_with_an_example(capsys):
 
 
 def test_every_stage_runs_as_qr_stage_and_as_python_m(tmp_path):
-    """``python -m qr.<stage> ARGS`` is ``qr <stage> ARGS`` for each of the six stages (``python -m
+    """``python -m qr.<stage> ARGS`` is ``qr <stage> ARGS`` for each of the seven stages (``python -m
     qr.train`` is ``qr learn``): the same help, the same one-line user error and exit 2; the Hydra
     stages' entry points are their stage modules; and ``qr --version``."""
     import subprocess
@@ -48,7 +48,9 @@ def test_every_stage_runs_as_qr_stage_and_as_python_m(tmp_path):
              "learn": [f"learn.dataset={tmp_path / 'missing.parquet'}"],
              "diagnose": [missing, "--vehicle", str(VEHICLES / "asctec_hummingbird.yaml"), "--out", "d"],
              "simulate": ["simulate.task=nonsense"],
-             "evaluate": [missing, "--vehicle", str(VEHICLES / "asctec_hummingbird.yaml"), "--out", "e"]}
+             "evaluate": [missing, "--vehicle", str(VEHICLES / "asctec_hummingbird.yaml"), "--out", "e"],
+             "replay": [missing, "--vehicle", str(VEHICLES / "asctec_hummingbird.yaml"), "--controller", "lee", "--out",
+                        "r"]}
     for stage, args in cases.items():
         modules = [f"qr.{stage}"] + (["qr.train"] if stage == "learn" else [])
         h = run(qr, stage, "--help")

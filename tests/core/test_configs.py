@@ -6,7 +6,7 @@ import pytest
 from conftest import ROOT
 from qr.config import compose
 
-GROUPS = ["data", "filter", "learn", "split", "model", "simulate", "diagnose", "evaluate", "sweep"]
+GROUPS = ["data", "filter", "learn", "split", "model", "simulate", "diagnose", "evaluate", "sweep", "replay", "controller"]
 CASES = [f"{g}={p.stem}" for g in GROUPS for p in sorted((ROOT / "conf" / g).glob("*.yaml"))]
 CASES += [f"+experiment=[{p.stem}]" for p in sorted((ROOT / "conf" / "experiment").glob("*.yaml"))]
 

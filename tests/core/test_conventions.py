@@ -9,6 +9,8 @@ the spec's definitions (docs/spec/flight-log.md), independently of the readings 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -120,6 +122,47 @@ def test_a_skipped_check_lets_a_user_who_knows_better_through(flight, tmp_path, 
     status, _, err = run_cli(["ingest", f, "--vehicle", d / "s" / "vehicle.yaml", "--out", tmp_path / "x.csv",
                               "--skip-check", "nonsense"], capsys)
     assert status == 2 and "unknown convention check 'nonsense'" in err
+
+
+def _file(d, tmp_path, **changes):
+    raw = yaml.safe_load((d / "s" / "vehicle.yaml").read_text())
+    path = tmp_path / "vehicle.yaml"
+    path.write_text(yaml.safe_dump({**raw, **changes}))
+    return path
+
+
+def test_a_plus_frame_flight_with_an_x_file_is_refused_naming_the_plus_layout(flight, tmp_path, capsys):
+    """The issue's case: layout x (and the mass 14 % off) for a plus-frame flight.  Rotated 45°, the x map's
+    roll and pitch torques still correlate with the needed ones (cos 45° of them): only a comparison with
+    the plus layout's tells; refused in one line with the layout that fits and the fix."""
+    d, df = flight
+    f = tmp_path / "flight.csv"
+    df.to_csv(f, index=False)
+    wrong = _file(d, tmp_path, layout="x", mass=0.8)
+    status, _, err = run_cli(["diagnose", f, "--vehicle", wrong, "--out", tmp_path / "out"], capsys)
+    assert status == 2, err
+    (line,) = err.strip().splitlines()
+    assert str(f) in line and "look like layout plus, not the vehicle file's layout (x)" in line, line
+    assert "fix: write layout: plus in the vehicle file" in line and "skip_checks=[rotor_layout]" in line, line
+    m = re.search(r"is ([-\d.]+), ([-\d.]+), ([-\d.]+) in roll.*best other reading, layout plus, gives ([-\d.]+), "
+                  r"([-\d.]+), ([-\d.]+) \(summed \+([\d.]+)", line)
+    x_file, plus = np.array(m.groups()[:3], float), np.array(m.groups()[3:6], float)
+    assert plus.sum() - x_file.sum() == pytest.approx(float(m[7]), abs=0.015) and plus[:2].min() > x_file[:2].min()
+    assert not (tmp_path / "out").exists()
+    right = conventions.check(df, load_vehicle(_file(d, tmp_path, mass=0.8)))[-1]
+    assert right.passed and "the best other reading, layout x, gives" in right.measured, right.measured
+    assert right.measured.endswith(": the file's layout fits"), right.measured
+
+
+def test_a_rotor_numbering_is_said_the_way_round_the_log_has_it(flight):
+    """Rotors 1, 2, 3 of the file logged as u2, u3, u1 (a cycle: the numbering and its inverse differ)."""
+    d, df = flight
+    cycled = df.copy()
+    cycled[["u2", "u3", "u1"]] = df[["u1", "u2", "u3"]].to_numpy()
+    (r,) = conventions.check(cycled, load_vehicle(d / "s" / "vehicle.yaml"), skip=("thrust_axis", "gyro"))
+    assert not r.passed and r.mistake.endswith("the layout's rotors 1..4 are the log's u2, u3, u1, u4"), r.mistake
+    back = cycled[["u2", "u3", "u1", "u4"]].to_numpy()  # the hint read literally puts them back
+    assert np.array_equal(back, df[["u1", "u2", "u3", "u4"]].to_numpy(), equal_nan=True)
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in VEHICLES.glob("*.yaml")))

@@ -101,9 +101,7 @@ def test_a_folder_of_the_users_is_refused_untouched_before_any_work(command, tmp
     (tmp_path / "f.csv").write_text("t\n")
     before = snapshot(tmp_path)
     args = SYNTH if command == "synth" else _diagnose(tmp_path / "f.csv")
-    t0 = time.perf_counter()
-    status, _, err = run_cli([*args, "--out", out], capsys)
-    assert time.perf_counter() - t0 < 1.0
+    status, _, err = run_cli([*args, "--out", out], capsys)  # (no_work: any work before the refusal fails)
     assert_refused(status, err, "mine", "not empty (4 entries)", "not a previous qr output", "--force")
     assert snapshot(tmp_path) == before and not temporaries(tmp_path)
 
@@ -199,9 +197,7 @@ def test_unusable_out_is_refused_in_one_line_before_any_work(case, command, tmp_
     before = snapshot(tmp_path)
     args = (["synth", "--vehicle", flight.parent / "v.yaml", "--duration", "2"] if command == "synth"
             else ["diagnose", flight, "--vehicle", flight.parent / "v.yaml"])
-    t0 = time.perf_counter()
-    status, _, err = run_cli([*args, "--out", out], capsys)
-    assert time.perf_counter() - t0 < 1.0
+    status, _, err = run_cli([*args, "--out", out], capsys)  # (no_work: any work before the refusal fails)
     assert_refused(status, err, phrase)
     assert snapshot(tmp_path) == before and not temporaries(tmp_path)
 
@@ -383,10 +379,11 @@ def test_atomic_writes_fsync_the_file_before_and_the_folder_after_the_rename(tmp
 # ---- killed commands -----------------------------------------------------------------------------
 
 def _start_killable(out: Path, log: Path):
-    """``qr synth`` into ``out`` (an existing output), long enough to be killed while it works."""
+    """``qr synth`` into ``out`` (an existing output), long enough to be killed while it works (an hour of
+    flight: it is killed as soon as it has begun, so its length costs nothing and leaves any machine time)."""
     env = {**os.environ, "QR_TRACKING": "off"}
     with open(log, "w") as err:
-        p = subprocess.Popen([QR, "synth", "--vehicle", HB, "--duration", "400", "--seed", "3", "--out", out],
+        p = subprocess.Popen([QR, "synth", "--vehicle", HB, "--duration", "3600", "--seed", "3", "--out", out],
                              env=env, stdout=subprocess.DEVNULL, stderr=err)
     deadline = time.time() + 120
     while not temporaries(out.parent):  # the temporary folder exists: the work has begun
@@ -420,9 +417,9 @@ def test_sigkill_leftovers_are_removed_by_the_next_run_of_the_command(previous_o
     assert p.wait(timeout=60) == -signal.SIGKILL
     assert temporaries(tmp_path)  # nothing could clean up ...
     assert snapshot(previous_output) == before  # ... and nothing of the output was touched
-    p = subprocess.run([QR, "synth", "--vehicle", HB, "--duration", "400", "--seed", "3", "--out", previous_output],
+    p = subprocess.run([QR, "synth", "--vehicle", HB, "--duration", "4", "--seed", "3", "--out", previous_output],
                        env={**os.environ, "QR_TRACKING": "off"}, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
     assert not temporaries(tmp_path)
     assert (previous_output / "my_notes.txt").read_text() == "the user's\n"
-    assert len(pd.read_csv(previous_output / "flight.csv")) == 40001
+    assert len(pd.read_csv(previous_output / "flight.csv")) == 401  # the new output, whole

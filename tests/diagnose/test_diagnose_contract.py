@@ -186,12 +186,23 @@ def _verdict_numbers(doc):
         assert m and int(m[1]) == round(100 * mf["force_of_weight"]) and int(m[2]) == round(
             100 * mf["torque_of_weight_at_arm"]) and int(m[3]) == round(100 * mf["limit"]), v
         assert mf["force_of_weight"] > mf["limit"] or mf["torque_of_weight_at_arm"] > mf["limit"]
-        assert not named
+        assert len(named) <= 1  # the largest effect at most, said before the flight is said not described
+        for e in doc["effects"]:
+            m = re.match(r"Identified (\w+) \((.*?)\), which alone removes (-?[\d.]+) % of the held-out residual\. "
+                         r"The model does not describe", v)
+            assert m and m[1] == e["name"] and float(m[3]) == pytest.approx(100 * e["explained_fraction"], abs=0.5)
+            for k, val in e["parameters"].items():
+                assert f"{k} = {val:.3g} ± {e['stderr'][k]:.2g}" in m[2], (k, m[2])
     elif named:
-        m = re.search(r"Named (.*?); the extended model removes (-?\d+) % of the nominal model's weighted held-out "
-                      r"residual variance \(now ([\d.]+) x the noise floor's variance\)", v)
+        m = re.search(r"Named (.*?); the extended model removes (-?[\d.]+) % of the nominal model's weighted held-out "
+                      r"residual variance \(now ([\d.]+) x the noise floor's variance\); (.*)\.", v)
         assert m and m[1].split(", ") == named, v
-        assert int(m[2]) == round(100 * (1 - ext / nom)) and float(m[3]) == pytest.approx(ext, abs=0.006), (v, nom, ext)
+        assert float(m[2]) == pytest.approx(100 * (1 - ext / nom), abs=0.5) and float(m[3]) == pytest.approx(ext, abs=0.006), (v, nom, ext)
+        assert "100" not in m[2] or ext == 0, v  # never "removes 100 %" while a residual is left
+        ratios = np.array(doc["extended"]["force_rmse"] + doc["extended"]["torque_rmse"]) / np.array(
+            doc["noise_floor"]["force_rmse"] + doc["noise_floor"]["torque_rmse"])
+        said = [float(x) for x in re.findall(r"\(([\d.]+) x\)", m[4])]
+        assert said == pytest.approx([r for r in ratios if r > 1.5], abs=0.051), (m[4], ratios)
     else:
         m = re.search(r"Nothing named: (.*) \(weighted residual ([\d.]+) x the noise floor's variance", v)
         assert m and float(m[2]) == pytest.approx(nom, abs=0.006)

@@ -301,3 +301,36 @@ def test_per_row_normal_equations_sum_to_any_set_of_rows():
         np.testing.assert_allclose(row_sums(h6, rows)[1], np.einsum("nrp,nr,nr->p", Xr, wr, yr), rtol=1e-12)
         assert row_sums(s6, rows)[1] == pytest.approx(float(np.sum(wr * yr**2)), rel=1e-12)
     assert cnt.tolist() == [600, 594, 600]  # sample-axis count: six per complete sample
+
+
+def test_rotor_drag_and_its_moment_named_together_share_one_k():
+    """The spec: rotor_drag and rotor_drag_moment are one rotor drag's force and moment; named together they
+    share one k.  Force rows y_f = 2 x_f, moment rows y_m = 2 x_m + a yaw torque 0.5 x3 (a third effect):
+    fitted together, the force and the moment columns carry one k, the least-squares slope of both rows at
+    once (by hand: (x_fᵀy_f + x_mᵀy_m) / (x_fᵀx_f + x_mᵀx_m), the third column orthogonal); the bootstrap,
+    the cross-validation and the variance inflation see one parameter; a force alone (the moment absent) is
+    not forced onto the moment, since each alone keeps its own."""
+    from qr.identification.bootstrap import bootstrap
+    from qr.identification.normal_equations import CrossValidator, fit, inflation, tie_map
+
+    rng = np.random.default_rng(3)
+    n = 6000
+    xf, xm, x3 = rng.standard_normal(n), rng.standard_normal(n), rng.standard_normal(n)
+    # the force and the moment act on different rows: stacked, each column is zero where the other acts
+    X = np.zeros((2 * n, 3))
+    X[:n, 0], X[n:, 1], X[n:, 2] = xf, xm, x3
+    y = np.concatenate([2.0 * xf, 2.1 * xm + 0.5 * x3]) + 0.1 * rng.standard_normal(2 * n)
+    e = ["rotor_drag", "rotor_drag_moment", "yaw_torque_gain"]
+    st = BlockStats(*_blocks(X, y), Columns.of(e))
+    T = tie_map(e)
+    assert T.tolist() == [[1, 0], [1, 0], [0, 1]] and tie_map(["rotor_drag", "yaw_torque_gain"]) is None
+    k_hand = (X[:, 0] @ y + X[:, 1] @ y - (X[:, 0] + X[:, 1]) @ X[:, 2] * 0.5) / (xf @ xf + xm @ xm)
+    th = fit(st, e)
+    assert th[0] == th[1] == pytest.approx(k_hand, rel=1e-3) and th[2] == pytest.approx(0.5, abs=0.01)
+    assert 2.0 < th[0] < 2.1  # between the rows' own slopes
+    reps = bootstrap(st, e, 50, 0)
+    assert np.array_equal(reps[:, 0], reps[:, 1])
+    assert inflation(st, e)[0] == inflation(st, e)[1] == pytest.approx(1.0, abs=0.05)
+    cv = CrossValidator(st, 5)
+    assert cv.loss(e) < cv.loss(["rotor_drag", "yaw_torque_gain"])
+    assert fit(st, ["rotor_drag_moment"])[0] == pytest.approx(2.1, abs=0.01)  # alone: its own k

@@ -214,3 +214,27 @@ def test_no_refinement_on_a_flight_the_model_does_not_describe(tmp_path, capsys)
     written = load_vehicle(tmp_path / "d" / "extended_vehicle.yaml")
     assert (written.thrust_coeff, written.torque_coeff, list(written.inertia)) == \
         (nominal.thrust_coeff, nominal.torque_coeff, list(nominal.inertia))
+
+
+def test_one_rotor_drag_named_as_force_and_moment_is_refined_as_one_parameter(tmp_path, hummingbird):
+    """rotor_drag and rotor_drag_moment named together share one k (the spec): the refinement moves that one
+    parameter (started 25 % low), and the written model carries it into both effects."""
+    from qr.diagnose.refine import RefineSettings, refine
+    from qr.effects import parse_effect_spec
+    from qr.sim.synth import SynthConfig, write_synth
+
+    k = 1.3e-5
+    write_synth(tmp_path, hummingbird, [parse_effect_spec(f"rotor_drag:k={k}"),
+                                        parse_effect_spec(f"rotor_drag_moment:k={k}")],
+                SynthConfig(duration=20, rate=100, seed=5))
+    train, test, noise = _windows(tmp_path / "flight.csv", hummingbird, 50, 100)
+    start = [{"name": n, "parameters": {"k": 0.75 * k}, "stderr": {"k": 0.5 * k}}
+             for n in ("rotor_drag", "rotor_drag_moment")]
+    r = refine(train, test, hummingbird, start, RefineSettings(delay=False, exclude=("inertia_error",)), noise)
+    drag = [p for p in r.parameters if p.named]
+    assert len(drag) == 1 and drag[0].followers == ("rotor_drag_moment",)
+    assert drag[0].label == "rotor_drag.k = rotor_drag_moment.k"
+    assert drag[0].rollout == pytest.approx(k, rel=0.1)  # the rollout moves it back to the truth
+    written = {e["name"]: e["parameters"].get("k") for e in r.effects(start)}
+    assert written["rotor_drag"] == written["rotor_drag_moment"] == drag[0].written
+    assert r.to_json()["parameters"][0]["shared_with"] == ["rotor_drag_moment"]

@@ -74,3 +74,28 @@ def test_the_conditions_by_hand():
     assert not said and "not the same statement" in open_[0]["why"]
     # a factor that is not gross is no statement at all
     assert coefficient_checks(_effect(0.9), v, "v.yaml", good, hover_ratio=1.1) == ([], [])
+
+
+def test_a_factor_a_rate_damping_takes_is_no_statement():
+    """The spec's rule, by hand: a C_Q factor of 0.13 (x7.7 too large) that, fitted beside a yaw-rate damping
+    (rotor_drag_moment), becomes 0.98 was the damping; an inertia factor that a body-rate damping takes is
+    no statement about J either.  A factor that stays gross beside the damping is stated (the rule costs a
+    true C_Q or J error nothing)."""
+    v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    ytg = [{"name": "yaw_torque_gain", "parameters": {"gain": 0.13}, "stderr": {"gain": 0.01}, "confounded_with": []}]
+    damped = {"yaw_torque_gain": Evidence([1.1], ["torque_bias"], ([0.13], [0.14]), [0.98])}
+    said, open_ = coefficient_checks(ytg, v, "v.yaml", damped)
+    assert not said and "yaw-rate damping (rotor_drag_moment" in open_[0]["why"] and "x0.98" in open_[0]["why"]
+    real = {"yaw_torque_gain": Evidence([1.1], ["torque_bias"], ([0.13], [0.14]), [0.15])}
+    said, open_ = coefficient_checks(ytg, v, "v.yaml", real)
+    assert len(said) == 1 and "C_Q / Jzz" in said[0]["statement"] and not open_
+    J = v.inertia
+    ie = [{"name": "inertia_error", "parameters": {"dJxx": -0.62 * J[0], "dJyy": 0.0, "dJzz": 0.0},
+           "stderr": {"dJxx": 1e-5, "dJyy": 1e-5, "dJzz": 1e-5}, "confounded_with": []}]
+    halves = ([-0.62 * J[0], 0.0, 0.0], [-0.6 * J[0], 0.0, 0.0])
+    said, open_ = coefficient_checks(ie, v, "v.yaml", {"inertia_error": Evidence([1.0] * 3, [None] * 3, halves,
+                                                                                 [-0.15 * J[0], 0.0, 0.0])})
+    assert not said and "rate damping" in open_[0]["why"] and open_[0]["key"] == "inertia[0]"
+    said, _ = coefficient_checks(ie, v, "v.yaml", {"inertia_error": Evidence([1.0] * 3, [None] * 3, halves,
+                                                                             [-0.6 * J[0], 0.0, 0.0])})
+    assert len(said) == 1 and "Jxx (inertia[0])" in said[0]["statement"]

@@ -32,7 +32,7 @@ def test_the_spec_command_line_writes_the_simulators_files_and_mapping_md(to, tm
         assert (out / rel).is_file(), rel
     text = (out / "mapping.md").read_text()
     rows = [line for line in text.splitlines() if line.startswith("| ") and not line.startswith("| qr item")]
-    statuses = [line.split(" | ")[4] for line in rows]
+    statuses = [line.split(" | ")[5] for line in rows]  # qr item, qr value, key, value, formula, mapping, note
     assert set(statuses) <= {"exact", "approximate", "impossible"}
     # every parameter and named effect has its row
     for item in ["mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_speed_unit",

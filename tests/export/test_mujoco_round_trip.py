@@ -35,8 +35,8 @@ def rotor_sequence(vehicle, n=200, seed=3):
     return vehicle.hover_speed * (1 + 0.03 * np.sin(2 * np.pi * freq * t[:, None] + phase))
 
 
-def mujoco_fly(xml, omega, dt, x0, cg):
-    model = mujoco.MjModel.from_xml_path(str(xml))
+def mujoco_fly(xml, omega, dt, x0, cg, model=None):
+    model = mujoco.MjModel.from_xml_path(str(xml)) if model is None else model
     data = mujoco.MjData(model)
     data.qpos[:3] = x0[:3] - np.array([cg[0], cg[1], 0.0])  # the body frame's origin: the CG starts at x0
     data.qpos[3:7] = x0[6:10]
@@ -86,3 +86,38 @@ def test_the_mjcf_numbers_are_qr_rotor_map_in_rad_s(tmp_path):
     assert yaw[:, 5] == pytest.approx([-2.537253e-12 / f**2, 2.537253e-12 / f**2] * 2, rel=1e-9)
     assert model.site_pos[:, :2] == pytest.approx(vehicle.rotors.positions, rel=1e-9)
     assert model.actuator_ctrlrange[0] == pytest.approx([0, (30000 * f) ** 2], rel=1e-9)
+
+
+def test_a_hybrids_learned_terms_fly_through_the_control_callback(tmp_path):
+    """A hybrid as ``qr learn residual`` writes it (every rigid-body term, a network on every input group, a
+    learned torque remainder): the MJCF plus ``<name>_learned_wrench.py`` installed as MuJoCo's control callback
+    fly qr's plant (the kernel of ``qr evaluate``'s rollout on the loaded file) to 1e-6 of the span; the MJCF
+    alone, without the callback, does not (the learned terms moved the flight far beyond the tolerance)."""
+    vehicle = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml").with_changes(effects=RIGID)
+    path = S.hybrid_file(vehicle, tmp_path / "hybrid", force=0.02, torque=2e-5, remainder=2e-6)
+    hybrid = load_vehicle(path)
+    run_export(path, "mujoco", tmp_path / "mj")
+    written = sorted(p.name for p in (tmp_path / "mj").iterdir() if not p.name.startswith("."))
+    assert written == ["crazyflie21_brushless.xml", "crazyflie21_brushless_learned_wrench.py",
+                       "crazyflie21_brushless_residual.npz", "mapping.md"]
+    learned = S.load_module(tmp_path / "mj" / "crazyflie21_brushless_learned_wrench.py")
+    u = rotor_sequence(hybrid)
+    x0 = S.hover_start()
+    a = S.qr_fly(hybrid, u, 0.01, x0)
+    xml = tmp_path / "mj" / "crazyflie21_brushless.xml"
+    cg = mp.plant_of(hybrid).cg
+    model = mujoco.MjModel.from_xml_path(str(xml))  # first: MuJoCo compiles no model under a Python callback
+    with learned.installed(model) as wrench:
+        assert mujoco.get_mjcb_control() is wrench
+        b = mujoco_fly(xml, u * mp.rad_s_per_unit(hybrid), 0.01, x0, cg, model)
+    assert mujoco.get_mjcb_control() is None  # the previous callback (none) is back
+    err, span = S.errors(a, b), S.span(a)
+    assert span["p"] > 0.1 and span["R"] > 0.1 and span["w"] > 0.5
+    for k in err:
+        assert err[k] <= 1e-6 * span[k], (k, err, span)
+    alone = S.errors(a, mujoco_fly(xml, u * mp.rad_s_per_unit(hybrid), 0.01, x0, cg))
+    assert max(alone[k] / span[k] for k in alone) > 1000 * 1e-6, alone
+    rows = (tmp_path / "mj" / "mapping.md").read_text().splitlines()
+    for item in ("residual", "torque_remainder"):
+        row = next(line for line in rows if line.startswith(f"| {item} |"))
+        assert "| exact |" in row and "learned_wrench.py" in row, row

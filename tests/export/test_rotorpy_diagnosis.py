@@ -8,10 +8,13 @@ flown by its SE3Control along two of its 3-D circles, 30 s each at 100 Hz.  Thro
 read backwards (qr.sim.rotorpy_flights.expected_effects): rotor_drag k = k_d, blade_flapping
 k = -k_flap Σω_hover, linear_drag kz = k_z Σω_hover.  Aerodynamics off, nothing may be named.
 
-What else a diagnosis names there is RotorPy physics qr's catalog has no term for, named through the
-nearest catalog term (docs/export.md, measured by benchmarks/rotorpy.py): translational lift as a body-z
-force, the rotor drag's moments at the hubs as yaw_torque_gain and inertia_error, the parasitic drag
-(0.6 % of the weight at these 2.4 m/s) inside the linear drag's kx, ky.
+RotorPy's rotor drag acts at the hubs: its moment is rotor_drag_moment, named with rotor_drag's k (the
+spec: one rotor drag); its translational lift k_h is translational_lift k.  What else a diagnosis names
+there is RotorPy physics qr's catalog has no term for, named through the nearest catalog term
+(docs/export.md, measured by benchmarks/rotorpy.py): the induced-inflow drag's moments at the hubs (a
+roll/pitch-rate damping) as inertia_error, the parasitic drag (0.6 % of the weight at these 2.4 m/s)
+inside the linear drag's kx, ky.  Whatever is named, nothing is said about the vehicle file: RotorPy's
+coefficients are the file's.
 """
 
 import copy
@@ -45,18 +48,22 @@ def diagnose(qp, aero, tmp_path):
         write_flight(flight, flights[-1])
     save_vehicle(vehicle_from_dict(vehicle_dict(qp, "hummingbird-rotorpy")), tmp_path / "vehicle.yaml")
     doc = run_diagnosis(flights, tmp_path / "vehicle.yaml", tmp_path / "diag", [], log=lambda m: None, figures=False)
-    return {e["name"]: e["parameters"] for e in doc["effects"]}
+    return {e["name"]: e["parameters"] for e in doc["effects"]}, doc
 
 
 def test_rotorpy_aerodynamics_are_named_through_the_mapping(tmp_path):
     qp = hummingbird()
     expected = expected_effects(qp)
-    named = diagnose(qp, True, tmp_path)
-    for name, key in (("rotor_drag", "k"), ("blade_flapping", "k"), ("linear_drag", "kz")):
+    named, doc = diagnose(qp, True, tmp_path)
+    for name, key in (("rotor_drag", "k"), ("rotor_drag_moment", "k"), ("translational_lift", "k"),
+                      ("blade_flapping", "k"), ("linear_drag", "kz")):
         assert name in named, (name, named)
         assert named[name][key] == pytest.approx(expected[name][key], rel=0.2), (name, named[name], expected[name])
-    assert "actuator_delay" not in named  # RotorPy's motor lag acts before the logged rotor speeds
+    assert named["rotor_drag"] == named["rotor_drag_moment"]  # one rotor drag
+    assert not {"actuator_delay", "yaw_torque_gain", "thrust_gain", "mass_error"} & set(named)  # its motor lag acts
+    # before the logged rotor speeds; its C_Q and C_T are the file's, its rotor drag's moment no C_Q error
+    assert not doc["vehicle_file"], doc["vehicle_file"]
 
 
 def test_nothing_is_named_on_a_rotorpy_flight_without_aerodynamics(tmp_path):
-    assert diagnose(hummingbird(), False, tmp_path) == {}
+    assert diagnose(hummingbird(), False, tmp_path)[0] == {}

@@ -42,8 +42,10 @@ ONE_EACH = {  # each catalog effect alone, at sizes like the brushless set's (RE
     "inertia_error": {"dJxx": 6.4e-6, "dJyy": 0.0, "dJzz": 0.0},
     "marker_offset": {"rx": 0.003, "ry": -0.001, "rz": 0.018},
     "blade_flapping": {"k": 6.9e-4},
+    "rotor_drag_moment": {"k": 2e-7},
+    "translational_lift": {"k": 5e-4},
 }
-NATIVE_EXACT = ("thrust_gain", "mass_error", "cg_offset", "yaw_torque_gain", "inertia_error")
+NATIVE_EXACT = ("thrust_gain", "mass_error", "cg_offset", "yaw_torque_gain", "inertia_error", "translational_lift")
 
 
 @pytest.fixture(scope="module")
@@ -182,3 +184,78 @@ def test_a_hybrid_with_a_learned_torque_remainder_flies_the_same_in_rotorpy(spee
     row = next(line for line in (tmp_path / "rp" / "mapping.md").read_text().splitlines()
                if line.startswith("| torque_remainder"))
     assert "| exact |" in row
+
+
+def test_a_hybrid_with_a_learned_wrench_flies_the_same_in_rotorpy(speeds, tmp_path):
+    """A hybrid file as ``qr learn residual`` writes it (the brushless extended model with the hub effects, hubs
+    1 cm above the CG, a network on every input group, a learned torque remainder): ``qr export --to rotorpy``
+    writes the network's weights beside the module, ``QrMultirotor`` evaluates it in NumPy beside qr's hub terms,
+    and RotorPy flies what ``qr evaluate``'s rollout integrates for the same file (its kernel, ``rigid_body_rk4``
+    on ``true_params`` of the loaded file, the network packed after the plant's slots) to 1e-6 of the span."""
+    from qr.vehicle import load_vehicle as load
+
+    extended = load_vehicle(EXTENDED)
+    hubs = [{"name": "rotor_drag", "parameters": {"k": 2e-7}}, {"name": "rotor_drag_moment", "parameters": {"k": 2e-7}},
+            {"name": "translational_lift", "parameters": {"k": 5e-4}}]
+    extended = extended.with_changes(hub_z=0.01, effects=extended.effects + hubs)
+    path = S.hybrid_file(extended, tmp_path / "hybrid", force=0.02, torque=2e-5, remainder=2e-6)
+    hybrid = load(path)
+    run_export(path, "rotorpy", tmp_path / "rp")
+    written = sorted(p.name for p in (tmp_path / "rp").iterdir() if not p.name.startswith("."))
+    assert written == ["crazyflie21_brushless_params.py", "crazyflie21_brushless_residual.npz", "mapping.md"]
+    mod = S.load_module(tmp_path / "rp" / "crazyflie21_brushless_params.py")
+    assert "torch" not in mod.__dict__ and mod.NETWORK is not None
+    x0 = S.hover_start()
+    a = S.qr_fly(hybrid, speeds, DT, x0)
+    b = S.rotorpy_fly(mod.QrMultirotor(integrator_kwargs=S.TIGHT), speeds * mp.rad_s_per_unit(hybrid), DT, x0)
+    ok, err, span = within(a, b)
+    assert ok, (err, span)
+    # the network, and the hub terms, each moved the flight far beyond the tolerance: the test can fail
+    without = hybrid.with_changes()
+    without.residual = None
+    no_hubs = hybrid.with_changes(effects=[e for e in hybrid.effects if e["name"] not in ("rotor_drag_moment",
+                                                                                           "translational_lift")])
+    for other in (without, no_hubs):
+        moved = S.errors(a, S.qr_fly(other, speeds, DT, x0))
+        assert max(moved[k] / span[k] for k in moved) > 1000 * RTOL, moved
+    rows = (tmp_path / "rp" / "mapping.md").read_text().splitlines()
+    row = next(line for line in rows if line.startswith("| residual |"))
+    assert "| exact |" in row and "RMS over the 1 samples" in row
+
+
+def test_rotorpys_rotor_drag_and_lift_at_the_hubs_are_qrs_terms(tmp_path):
+    """rotor_drag and rotor_drag_moment named with one k, and translational_lift, hubs 1 cm above the CG:
+    RotorPy's H-force and lift at the hubs (rotor_drag_matrix = diag(k/f, k/f, 0), k_h = k) give qr's
+    catalog moments exactly, at any rotor speeds and body rates; its force is qr's plus the hub part
+    -k_d Σ ω_i (ω × r_i)_xy mapping.md states (zero at equal speeds without roll/pitch rate)."""
+    from qr.effects import CATALOG, Signals
+
+    k, kl = 2e-7, 5e-4
+    vehicle = load_vehicle(VEHICLES / "crazyflie21_brushless.yaml").with_changes(hub_z=0.01, effects=[
+        {"name": "rotor_drag", "parameters": {"k": k}}, {"name": "rotor_drag_moment", "parameters": {"k": k}},
+        {"name": "translational_lift", "parameters": {"k": kl}}])
+    mod = export(vehicle, tmp_path)
+    f = mp.rad_s_per_unit(vehicle)
+    assert mod.quad_params["k_d"] == pytest.approx(k / f, rel=1e-9) and mod.quad_params["k_h"] == kl
+    rows = {r.split(" | ")[0].strip("| "): r for r in (tmp_path / "rp" / "mapping.md").read_text().splitlines()}
+    assert "| exact |" in rows["rotor_drag_moment"] and "| exact |" in rows["translational_lift"]
+    r = mp.plant_of(vehicle).rotor_pos
+    rng = np.random.default_rng(2)
+    hover = mp.plant_of(vehicle).hover
+    for _ in range(5):
+        v, w = rng.normal(0, 2, 3), rng.normal(0, 2, 3)
+        omega = hover * rng.uniform(0.8, 1.2, 4)  # rad/s
+        F, M = _aero(mod, omega, v, w)
+        u = omega / f  # the vehicle's unit
+        s = Signals(R=np.eye(3)[None], v_b=v[None], a_b=np.zeros((1, 3)), omega=w[None], alpha=np.zeros((1, 3)),
+                    u=u[None], u_dot=np.zeros((1, 4)), p=np.array([[0.0, 0.0, 1.0]]))
+        qr = sum(CATALOG[e["name"]].term(e["parameters"], s, vehicle)[0] for e in vehicle.effects)
+        np.testing.assert_allclose(M, qr[3:], rtol=1e-9, atol=1e-16)
+        hub_part = -k / f * (omega[:, None] * np.cross(w, r)).sum(axis=0) * [1, 1, 0]
+        np.testing.assert_allclose(F, qr[:3] + hub_part, rtol=1e-9, atol=1e-16)
+    # mapping.md's condition: equal rotor speeds, yaw rate only: RotorPy's force is qr's
+    F, _ = _aero(mod, np.full(4, hover), v, np.array([0.0, 0.0, w[2]]))
+    s = Signals(R=np.eye(3)[None], v_b=v[None], a_b=np.zeros((1, 3)), omega=np.array([[0.0, 0.0, w[2]]]),
+                alpha=np.zeros((1, 3)), u=np.full((1, 4), hover / f), u_dot=np.zeros((1, 4)), p=np.array([[0.0, 0.0, 1.0]]))
+    qr = sum(CATALOG[e["name"]].term(e["parameters"], s, vehicle)[0] for e in vehicle.effects)
+    np.testing.assert_allclose(F, qr[:3], rtol=1e-9, atol=1e-16)

@@ -278,8 +278,55 @@ def test_a_sweep_is_one_parent_run_with_a_logged_model_per_job(flights, tmp_path
     model = mlflow.pyfunc.load_model(f"runs:/{child.info.run_id}/model")
     assert model.metadata.signature is not None
     # the logged module is the vehicle file's network: same wrench for the same features
-    from qr import residual as rs
+    from learning_data import residual_wrench
 
     res = load_vehicle(out / "job1" / "hybrid_vehicle.yaml").residual
     phi = res.input_mean + res.input_scale * np.random.default_rng(0).normal(size=(7, 13))
-    np.testing.assert_allclose(np.asarray(model.predict(phi), float), rs.forward(res, phi), rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(model.predict(phi), float), residual_wrench(res, phi), rtol=1e-9, atol=1e-12)
+
+
+def test_the_trained_wrench_size_is_recorded_for_the_exports(flights, trained):
+    """``qr export`` states a network's size where a simulator has no place for it (PX4-gz): ``qr learn
+    residual`` records its RMS over the training windows, in training.json and in the vehicle file's block.
+    The truth's hidden term is τ = −C ω on roll and pitch, which the network learned: its RMS torque is the
+    hidden torque's over the training flight (C times the RMS roll-pitch rate there), and it adds no force
+    the flights do not have (its RMS force stays below 1 % of the weight)."""
+    doc, out = trained
+    size = doc["residual_size"]
+    assert json.loads((out / "training.json").read_text())["residual_size"] == size
+    assert yaml.safe_load((out / "hybrid_vehicle.yaml").read_text())["residual"]["size"] == size
+    assert size["flights"] == doc["flights"]["training"] == [str(flights / "a" / "flight.csv")]
+    w = pd.read_parquet(flights / "a" / "truth.parquet")[["wx", "wy"]].to_numpy()  # the true body rate
+    hidden = C * np.sqrt(np.mean(np.sum(w**2, axis=1)))
+    assert size["samples"] > 0.8 * len(w)  # the windows cover the training flight
+    assert size["rms_torque"] == pytest.approx(hidden, rel=0.25), (size, hidden)
+    assert size["rms_force"] < 0.01 * 0.7 * 9.81
+    assert size["rms_torque"] == pytest.approx(np.linalg.norm(size["rms_torque_xyz"]), rel=1e-5)
+
+
+def test_no_better_epoch_keeps_a_zero_network_and_says_so(flights, tmp_path):
+    """A step size that only makes it worse (lr = 1): no epoch beats the start, the network written is zero, the
+    hybrid's validation errors equal the vehicle's to the bit, and the report and the log say exactly that;
+    the two flights (both named flight.csv) are named by their paths, which trains and which validates."""
+    from qr.stages.learn_residual import run_residual
+
+    a, b = str(flights / "a" / "flight.csv"), str(flights / "b" / "flight.csv")
+    said = []
+    doc = run_residual([a, b], flights / "a" / "vehicle.yaml", tmp_path / "res",
+                       [*TINY, "learn.lr=1", "learn.patience=1"], track=False, log=said.append)
+    assert doc["epochs"]["best"] == 0 and doc["loss_per_epoch"][0]["val_loss"] > doc["initial_loss"]["val_loss"]
+    with np.load(tmp_path / "res" / "residual.npz") as z:
+        last = sorted(k for k in z.files if k.startswith("W"))[-1]
+        assert not z[last].any() and not z["b" + last[1:]].any()  # zero output
+    mae = doc["validation"]["mae"]
+    assert mae["hybrid"] == mae["vehicle"]  # equal to the last bit
+    text = (tmp_path / "res" / "report.md").read_text()
+    assert "no epoch improved the validation loss" in text and "a network of zero output" in text
+    assert "leaves the validation error of p, v, R and w equal to the vehicle's to the last bit" in text
+    assert "raises" not in text and "lowers" not in text
+    assert f"2 flights given: 1 trains ({a}), 1 validates ({b}: early stopping, never trained on)" in text
+    assert any(f"1 trains ({a}), 1 validates ({b}" in m for m in said), said
+    assert any(m.startswith("no epoch improved the validation loss") for m in said), said
+    named = [m for m in said if "flight.csv" in m]
+    assert named and all(a in m or b in m for m in named), named  # never a bare "flight.csv"
+    assert f"on {a}:" in (tmp_path / "res" / "hybrid_vehicle.yaml").read_text().splitlines()[0]

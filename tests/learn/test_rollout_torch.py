@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 import torch
 
+from learning_data import residual_wrench
 from qr import residual as rs
 from qr import rollout
 from qr import rollout_torch as rt
@@ -24,7 +25,8 @@ EFFECTS = {  # every catalog effect, at sizes a rollout notices (the Hummingbird
     "mass_error": "dm=0.05", "ground_effect": "k=0.005", "motor_imbalance": "d1=0.05,d2=-0.03,d3=0.02,d4=0.0",
     "cg_offset": "rx=0.01,ry=-0.005", "torque_bias": "tx=0.01,ty=-0.01,tz=0.005", "yaw_torque_gain": "gain=1.2",
     "inertia_error": "dJxx=0.001,dJyy=0.0015,dJzz=0.002", "marker_offset": "rx=0.02,ry=-0.01,rz=0.03",
-    "blade_flapping": "k=0.02", "actuator_delay": "delay_s=0.025",
+    "blade_flapping": "k=0.02", "actuator_delay": "delay_s=0.025", "rotor_drag_moment": "k=1e-5",
+    "translational_lift": "k=0.01",
 }
 
 
@@ -44,6 +46,7 @@ def _case(name, hummingbird):
     if name in ("effects", "all"):
         assert set(EFFECTS) == set(CATALOG)
         effects = [parse_effect_spec(f"{k}:{p}") for k, p in EFFECTS.items()]
+        v = v.with_changes(hub_z=0.03)  # hubs above the CG: the hub effects' roll and pitch parts too
     net = None
     if name == "all":
         W = np.random.default_rng(5).normal(0, 0.01, (3, 11))
@@ -96,8 +99,8 @@ def test_derivative_and_rk4_step_equal_the_compiled_plant(case, hummingbird):
         R = quat_to_rot(x[:, 6:10])
         phi = rs.features(net.inputs, np.einsum("nji,nj->ni", R, x[:, 3:6]), x[:, 10:13], -R[:, 2, :], u,
                           vehicle.hover_speed)
-        np.testing.assert_allclose(rs.forward(vehicle.residual, phi), net(torch.as_tensor(phi)).detach().numpy(),
-                                   rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(residual_wrench(vehicle.residual, phi),
+                                   net(torch.as_tensor(phi)).detach().numpy(), rtol=1e-12, atol=1e-15)
 
 
 def _piece(rng, vehicle, n=120, H=15):

@@ -30,6 +30,8 @@ EFFECTS = {
     "inertia_error": "dJxx=0.001,dJyy=0.0015,dJzz=0.002",
     "marker_offset": "rx=0.02,ry=-0.01,rz=0.03",
     "blade_flapping": "k=0.02",
+    "rotor_drag_moment": "k=1e-5",
+    "translational_lift": "k=0.01",
 }
 CFG = SynthConfig(duration=20, seed=3, noise_free=True,
                   trajectory=TrajectoryConfig(low_passes=True, dip_every_s=6.0))

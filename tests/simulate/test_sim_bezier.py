@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 from qr.errors import QrInputError
-from qr.sim.bezier import (THESIS_TANGENTS, THESIS_WAYPOINTS, bernstein, bezier_trajectory, control_points,
-                           from_config)
+from qr.sim.bezier import THESIS_TANGENTS, THESIS_WAYPOINTS, bezier_trajectory, control_points, from_config
 
 T = 5.0
 
@@ -26,11 +25,18 @@ def test_eq_5_3_and_control_points_eq_5_4():
     np.testing.assert_array_equal(c[k, 2], THESIS_WAYPOINTS[k + 1] - THESIS_TANGENTS[k + 1])  # p2 = p_end - v_end
 
 
-def test_weights_are_the_binomial_bernstein_ones_not_eq_5_5():
+def test_weights_are_the_binomial_bernstein_ones_not_eq_5_5(traj):
+    """Inside each segment the trajectory is the Bernstein form (weights summing to one) of its control
+    points; eq. 5.5's weights (without the binomial 3s) would lose half the curve at s = 1/2."""
     s = np.linspace(0, 1, 11)
-    np.testing.assert_allclose(bernstein(s).sum(axis=1), 1.0)
+    bernstein = np.stack([(1 - s) ** 3, 3 * (1 - s) ** 2 * s, 3 * (1 - s) * s**2, s**3], axis=1)
+    np.testing.assert_allclose(bernstein.sum(axis=1), 1.0)
+    c = control_points(THESIS_WAYPOINTS, THESIS_TANGENTS)
+    for k in range(len(c)):
+        got = np.array([traj.at(k * T + si * T)[0] for si in s[1:-1]])
+        np.testing.assert_allclose(got, bernstein[1:-1] @ c[k], atol=1e-12)
     eq_5_5 = np.stack([(1 - s) ** 3, (1 - s) ** 2 * s, (1 - s) * s**2, s**3], axis=1)
-    assert eq_5_5.sum(axis=1)[5] == pytest.approx(0.5)  # eq. 5.5 loses half the curve at s = 1/2
+    assert eq_5_5.sum(axis=1)[5] == pytest.approx(0.5)
 
 
 def test_passes_through_the_waypoints_with_the_given_tangents(traj):

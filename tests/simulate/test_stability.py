@@ -6,10 +6,15 @@ import pytest
 from qr.sim.bezier import bezier_trajectory
 from qr.sim.disturbance import LinearForce
 from qr.sim.study import Plant, SimSettings, fly
-from qr.sim.stability import analyse, axis_roots, eigenvalues, growth_per_step, m_va
+from qr.sim.stability import analyse, eigenvalues, growth_per_step, m_va
 
 M = 0.7
 DT = 1e-3
+
+
+def axis_roots(a: float, v: float, dt: float) -> np.ndarray:
+    """The two eigenvalues of one axis with ``W_a/m = a``, ``W_v/m = v``: roots of (λ-1)(λ-a) - dt v."""
+    return np.roots([1.0, -(1.0 + a), a - dt * v])
 
 
 def _rot_block(re, im, zz):

@@ -33,17 +33,22 @@ def _status(path, job):
 def test_cluster_jobs_submit_cancel_and_resume(tmp_path):
     """A small target (results/simulation/stability.csv: one job, MLflow runs open all along) through
     profiles/local-cluster: Ctrl-C while its run is open cancels the job (the cancel command), the
-    run ends KILLED; the same command then runs it to the end."""
+    run ends KILLED; the same command then runs it to the end.  The job is surely running when Ctrl-C
+    comes: once its parent run is open, the test holds the store's lock, and the job, opening its next
+    (child) run, waits for it."""
     path = wr.workdir(tmp_path / "wf")
     results = path / "results"
     target = ("--", "results/simulation/stability.csv")
 
     p = wr.start(path, *PROFILE, *target)
-    open_runs = wr.wait_for(lambda: wr.running(results, "stability"), p, "the job opened its MLflow run")
-    assert wr.kill_group(p, signal.SIGINT) != 0  # Snakemake calls local_cancel.sh for its jobs
-    (job,) = _jobs(path)
+    wr.wait_for(lambda: wr.running(results, "stability"), p, "the job opened its MLflow run")
+    with wr.store_held(results) as lock:
+        wr.wait_for(lambda: wr.waiting_for(lock), p, "the job waiting to open its next run")
+        open_runs = wr.running(results, "stability")
+        assert wr.kill_group(p, signal.SIGINT) != 0  # Snakemake calls local_cancel.sh for its jobs
+        (job,) = _jobs(path)
+        wr.wait_for(lambda: (job / "exitcode").exists(), None, "the cancelled job ended")
     assert '"rule": "stability"' in (job / "jobscript.sh").read_text()  # the job script Snakemake wrote
-    wr.wait_for(lambda: (job / "exitcode").exists(), None, "the cancelled job ended")
     assert (job / "exitcode").read_text().strip() != "0" and _status(path, job) == "failed"
     runs = wr.all_runs(results)
     open_parents = [rid for rid in open_runs if "mlflow.parentRunId" not in runs[rid].data.tags]

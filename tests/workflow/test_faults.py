@@ -64,8 +64,7 @@ def test_sigkill_leaves_stale_state_that_the_rerun_clears(faulted):
 def test_rerun_is_complete_and_nothing_is_lost(faulted):
     results, final = faulted["results"], faulted["final"]
     # nothing left to do: every output exists, is whole and up to date
-    rc = wr.snakemake(faulted["path"], "--cores", "2", "--configfile", wr.CI_CONFIG, "--dry-run",
-                      log="dryrun.log")
+    rc = wr.snakemake(faulted["path"], *faulted["args"], "--dry-run", log="dryrun.log")
     assert rc == 0 and "Nothing to be done" in (faulted["path"] / "dryrun.log").read_text()
     assert wr.broken_outputs(results) == []
     assert wr.temporaries(results) == []  # orphaned write-then-rename temporaries were removed
@@ -114,7 +113,7 @@ OPEN_RUN = textwrap.dedent("""
     class Slow:  # a finalizer that is running when the signal comes (Python drops exceptions there)
         def __del__(self):
             print("in-finalizer", flush=True)
-            time.sleep(3)
+            time.sleep(300)  # until the signal: it lands here however long the test takes to send it
 
     with tracking.run("unit", sys.argv[1], {"a": 1}) as r:
         print("open", r.id, flush=True)

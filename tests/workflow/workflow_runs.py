@@ -9,6 +9,8 @@ it; /work/main/results is never touched.  Each full run is made once per test se
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import re
@@ -43,6 +45,11 @@ def env(path: Path, **extra) -> dict:
     e.update({"QR_RESULTS": str(path / "results"), "QR_DATA": str(DATA), "QR_TRACKING": "on"})
     e.update(extra)
     return e
+
+
+def with_tests_path() -> str:
+    """PYTHONPATH with this folder first: processes started by a test import its helpers (sweep_barrier)."""
+    return os.pathsep.join([str(Path(__file__).parent), *filter(None, [os.environ.get("PYTHONPATH")])])
 
 
 def start(path: Path, *args, log: str = "snakemake.log", **extra_env) -> subprocess.Popen:
@@ -163,14 +170,22 @@ def integrity(results: Path) -> str:
 
 def running(results: Path, stage: str | None = None) -> set[str]:
     """Ids of the runs the store has RUNNING now (read-only SQL, so writers are not held up)."""
+    return stored(results, stage, "RUNNING")
+
+
+def stored(results: Path, stage: str | None = None, status: str | None = None) -> set[str]:
+    """Ids of the runs the store holds (of ``stage``, with ``status``), read-only SQL as :func:`running`."""
     db = results / "mlflow.db"
     if not db.exists():
         return set()
-    sql = "SELECT run_uuid FROM runs WHERE status = 'RUNNING'"
+    sql = "SELECT run_uuid FROM runs WHERE 1 = 1"
     args = ()
+    if status:
+        sql += " AND status = ?"
+        args += (status,)
     if stage:
         sql += " AND run_uuid IN (SELECT run_uuid FROM tags WHERE key = 'qr.stage' AND value = ?)"
-        args = (stage,)
+        args += (stage,)
     try:
         con = sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5)
         try:
@@ -179,6 +194,30 @@ def running(results: Path, stage: str | None = None) -> set[str]:
             con.close()
     except sqlite3.Error:  # the store is being created
         return set()
+
+
+@contextlib.contextmanager
+def store_held(results: Path):
+    """The tracking store's lock file (qr.tracking takes it to open every run), held by the test: a
+    process opening a run waits until the block ends.  Yields the lock file's path."""
+    lock = results / "mlflow.lock"
+    with open(lock, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield lock
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def waiting_for(lock: Path) -> bool:
+    """Does a process wait for the flock of ``lock``?  (Linux's /proc/locks marks a waiter with ``->``:
+    ``1: -> FLOCK ADVISORY WRITE <pid> <major>:<minor>:<inode> 0 EOF``.)"""
+    inode = str(lock.stat().st_ino)
+    for line in Path("/proc/locks").read_text().splitlines():
+        parts = line.split()
+        if len(parts) > 6 and parts[1] == "->" and parts[2] == "FLOCK" and parts[6].split(":")[-1] == inode:
+            return True
+    return False
 
 
 def parent_files(results: Path) -> dict[str, str]:
@@ -214,16 +253,29 @@ def faulted_run(tmp_path_factory) -> dict:
        parent run open;
     3. rerun: refused (the killed run's lock); ``snakemake --unlock``; rerun: it must complete.
 
+    The sweeps' parent runs are open when the signals come, forced rather than hoped for: each sweep,
+    its jobs done, waits before it closes its parent run (sweep_barrier, a Hydra callback added to the
+    sweeps' overrides by a second config file) until the file ``release`` exists, made before step 3's
+    last rerun.  (The barrier changes no table: it is a `hydra.` override, and only delays.)
+
     Returns what was observed after each step (return codes, the store's runs, lock and
     incomplete markers, broken outputs)."""
     if "faulted" in _memo:
         return _memo["faulted"]
+    import yaml
+
+    from sweep_barrier import barrier_overrides
+
     path = workdir(tmp_path_factory.mktemp("ci_faulted"))
     results = path / "results"
-    args = ("--cores", "2", "--configfile", CI_CONFIG)
-    obs = {"path": path, "results": results}
+    ci = yaml.safe_load((ROOT / CI_CONFIG).read_text())
+    barrier = {"learn": {"overrides": [*ci["learn"]["overrides"], *barrier_overrides(path / "release", "multirun_end")]}}
+    (path / "barrier.yaml").write_text(yaml.safe_dump(barrier))
+    args = ("--cores", "2", "--configfile", CI_CONFIG, "barrier.yaml")
+    obs = {"path": path, "results": results, "args": args}
+    env = {"PYTHONPATH": with_tests_path()}  # the sweeps import sweep_barrier
 
-    p = start(path, *args)
+    p = start(path, *args, **env)
     wait_for(lambda: parent_files(results), p, "a learning sweep opened its parent run")
     obs["sigint_open"] = running(results)
     obs["sigint_ms"] = int(time.time() * 1000)  # runs that end after this were ended by the Ctrl-C
@@ -234,7 +286,7 @@ def faulted_run(tmp_path_factory) -> dict:
     obs["locks_after_sigint"] = sorted(x.name for x in (path / ".snakemake" / "locks").glob("*"))
 
     seen = set(parent_files(results).values())
-    p = start(path, *args)
+    p = start(path, *args, **env)
     new = wait_for(lambda: set(parent_files(results).values()) - seen, p, "a resumed sweep opened its parent run")
     obs["sigkill_rc"] = kill_group(p, signal.SIGKILL)
     obs["sigkill_parents"] = new
@@ -244,10 +296,11 @@ def faulted_run(tmp_path_factory) -> dict:
     obs["incomplete_after_sigkill"] = sorted(x.name for x in (path / ".snakemake" / "incomplete").rglob("*")
                                              if x.is_file())
 
-    obs["locked_rc"] = snakemake(path, *args, check=False)
+    obs["locked_rc"] = snakemake(path, *args, check=False, **env)
     obs["locked_log"] = (path / "snakemake.log").read_text(errors="replace")
-    snakemake(path, "--unlock")
-    obs["resume_rc"] = snakemake(path, *args, check=False)
+    snakemake(path, "--unlock", **env)
+    (path / "release").touch()  # the sweeps may end now
+    obs["resume_rc"] = snakemake(path, *args, check=False, **env)
     obs["resume_log"] = (path / "snakemake.log").read_text(errors="replace")
     obs["final"] = all_runs(results)
     _memo["faulted"] = obs

@@ -1,5 +1,7 @@
 # Shared definitions: configuration, data sets, path helpers.
 import os
+import re
+import sys
 from pathlib import Path
 
 import yaml
@@ -52,9 +54,29 @@ if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): N fl
         _s["flights"] = spread(_s["flights"], _info, int(config["flights_per_set"]))
 
 
-def raw_log(wildcards):
-    s = SETS[wildcards.set]
-    return str(DATA_ROOT / s.get("dir", "") / (wildcards.flight + s.get("suffix", "")))
+def raw_log(set_name, flight):
+    s = SETS[set_name]
+    return str(DATA_ROOT / s.get("dir", "") / (flight + s.get("suffix", "")))
+
+
+FLIGHTS_PER_JOB = int(config["flights_per_job"])  # conf/workflow.yaml
+
+
+def batches(set_name):
+    """The set's flights in consecutive batches of at most `flights_per_job`, as equal as can be: one
+    ingest and one filter job each (rules ingest_<set>_<k>, filter_<set>_<k>), so a job's Python,
+    imports and compiled kernels start once per batch, not once per flight; several batches per set keep
+    both cores busy."""
+    flights = SETS[set_name]["flights"]
+    n = len(flights)
+    k = -(-n // FLIGHTS_PER_JOB)
+    return [flights[i * n // k:(i + 1) * n // k] for i in range(k)]
+
+
+def batch_rule(stage, set_name, k):
+    """The name of the rule of a set's k-th batch (a rule name is an identifier)."""
+    name = re.sub(r"\W", "_", set_name)
+    return f"{stage}_{name}_{k}"
 
 
 def shipped_vehicle(name):
@@ -148,3 +170,39 @@ def overview_figures():
             ("results/figures/sim_rmse.png", "Simulation: position RMSE per residual model and controller (log "
              "scale; hatched: diverged). Lower is better; the oracle, which knows the true disturbance, is the floor.")]
     return out
+
+
+# ---- the held-out splits (rules evaluate_held_out, generalization_fold: workflow/rules/evaluate.smk) ----
+
+def repeat_split(set_name):
+    """The repeat split of a set, with what its flights fly where the data set says (its report then says
+    whether the held-out flights repeat training trajectories)."""
+    described = bool(SETS[set_name].get("flown"))
+    return {"kind": "repeat", "data": str(DATA_FILE) if described else "", "set": set_name if described else ""}
+
+
+GEN = config.get("generalization", {})
+
+
+def _generalization_folds():
+    """Set -> fold name -> qr.holdout.Fold; and the folds the run's flights cannot make (a subset of a set),
+    left out and said so (in the log and under the table)."""
+    from qr.errors import QrInputError
+    from qr.holdout import folds
+
+    out, skipped = {}, []
+    for name, specs in (GEN.get("sets") or {}).items():
+        if name not in SETS or not specs:
+            continue
+        left = []
+        try:
+            out[name] = {f.name: f for f in folds(specs, SETS[name]["flights"], str(DATA_FILE), name, skipped=left)}
+        except QrInputError as e:
+            raise WorkflowError(f"{DATA_FILE}: workflow.generalization.sets.{name}: {e}") from None
+        for fold, why in left:
+            print(f"generalization: {name}/{fold} left out: {why}", file=sys.stderr)
+            skipped.append(f"{name}/{fold}: {why}")
+    return out, skipped
+
+
+GEN_FOLDS, GEN_SKIPPED = _generalization_folds()

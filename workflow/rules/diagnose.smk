@@ -6,9 +6,9 @@
 
 rule diagnose_set:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
     output:
         directory("results/diagnosis/{set}/all"),
@@ -26,9 +26,9 @@ rule diagnose_set:
 
 rule diagnose_each:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
     output:
         flights=directory("results/diagnosis/{set}/flights"),
@@ -63,9 +63,9 @@ rule carry_over:
 
 rule diagnose_check:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=lambda wc: shipped_vehicle(DIAG_CHECK["vehicle"]),
     output:
         directory("results/diagnosis/{set}/check"),

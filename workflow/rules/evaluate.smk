@@ -4,23 +4,14 @@
 # rate_frozen (rule evaluate_learned: the rollout-trained residuals on the same flights).
 # Its training diagnosis adds the named experiments of conf/workflow.yaml's `evaluate.experiments`.
 
-import sys
-
 EVAL = config.get("evaluate", {})
-
-
-def repeat_split(set_name):
-    """The repeat split of a set, with what its flights fly where the data set says (its report then says
-    whether the held-out flights repeat training trajectories)."""
-    described = bool(SETS[set_name].get("flown"))
-    return {"kind": "repeat", "data": str(DATA_FILE) if described else "", "set": set_name if described else ""}
 
 
 rule evaluate_held_out:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
     output:
         diagnosis=directory("results/evaluation/{set}/training_diagnosis"),
@@ -46,9 +37,9 @@ rule evaluate_held_out:
 # same held-out flights.
 rule evaluate_learned:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
         residual=lambda wc: rules.learn_residual.output[0].format(set=wc.set),
         carried=lambda wc: f"results/learn/carried/{wc.set}" if wc.set == RESIDUAL_CARRY else [],
@@ -90,39 +81,14 @@ rule evaluation_summary:
 # trains what it scores (rule generalization_fold: the training diagnosis with the refinement, the rollout of
 # its models, and where `hybrid: true` a residual trained through the rollout); one table beside the repeat
 # split (every third flight: the same trajectories) of the rules above.
-GEN = config.get("generalization", {})
-
-
-def _generalization_folds():
-    """Set -> fold name -> qr.holdout.Fold; and the folds the run's flights cannot make (a subset of a set),
-    left out and said so (in the log and under the table)."""
-    from qr.errors import QrInputError
-    from qr.holdout import folds
-
-    out, skipped = {}, []
-    for name, specs in (GEN.get("sets") or {}).items():
-        if name not in SETS or not specs:
-            continue
-        left = []
-        try:
-            out[name] = {f.name: f for f in folds(specs, SETS[name]["flights"], str(DATA_FILE), name, skipped=left)}
-        except QrInputError as e:
-            raise WorkflowError(f"{DATA_FILE}: workflow.generalization.sets.{name}: {e}") from None
-        for fold, why in left:
-            print(f"generalization: {name}/{fold} left out: {why}", file=sys.stderr)
-            skipped.append(f"{name}/{fold}: {why}")
-    return out, skipped
-
-
-GEN_FOLDS, GEN_SKIPPED = _generalization_folds()
 GEN_DIRS = [f"results/generalization/{s}/{f}" for s, fs in GEN_FOLDS.items() for f in fs]
 
 
 rule generalization_fold:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=diagnosis_vehicle,
     output:
         directory("results/generalization/{set}/{fold}"),

@@ -1,6 +1,7 @@
-# Filter: every ingested flight -> state table + NIS report, a NIS summary (and one MLflow run per flight:
-# logged by filter_summary from one process, since importing MLflow costs more than filtering a flight),
-# over all flights, and thesis-style figures (Figs. 4.2-4.8) for one chosen flight.
+# Filter: every ingested flight -> state table + NIS report (one job per batch of a set's flights), a NIS
+# summary over all flights (and one MLflow run per flight: logged by filter_summary from one process, since
+# importing MLflow costs more than filtering a flight), and thesis-style figures (Figs. 4.2-4.8) for one
+# chosen flight.
 # The Hydra overrides of the filter (conf/filter/) come from conf/workflow.yaml, key `filter`; unless they
 # select a filter, it is the one the diagnoses read (qr.estimation.settings.DIAGNOSIS_FILTER), so the
 # cross-fit files are theirs and no diagnosis filters a flight again.
@@ -17,34 +18,44 @@ FILTER_FIGURES = ["position", "velocity", "acceleration", "quaternion", "angular
                   "angular_acceleration", "rotors"]
 
 
-rule filter:
-    input:
-        flight=rules.ingest.output[0],
-        vehicle=lambda wc: vehicle_file(wc.set),
-    output:
-        states="results/filter/{set}/{flight}.parquet",
-        nis="results/filter/{set}/{flight}.nis.json",
-        # every airborne segment's matched estimate and its even/odd cross-fitting halves: what the
-        # diagnoses read instead of filtering the flight again
-        crossfit="results/filter/{set}/{flight}.crossfit.parquet",
-    log:
-        "results/logs/filter/{set}/{flight}.log",
-    benchmark:
-        "results/benchmarks/filter/{set}/{flight}.tsv"
-    params:
-        overrides=FILTER_OVERRIDES,
-        name=lambda wc: f"{wc.set}/{wc.flight}",
-    conda:
-        "../envs/qr.yaml"
-    script:
-        "../scripts/filter.py"
+FILTERED = {  # one flight's filter outputs: what the other rules read
+    "states": "results/filter/{set}/{flight}.parquet",
+    "nis": "results/filter/{set}/{flight}.nis.json",
+    # every airborne segment's matched estimate and its even/odd cross-fitting halves: what the
+    # diagnoses read instead of filtering the flight again
+    "crossfit": "results/filter/{set}/{flight}.crossfit.parquet",
+}
+
+# one job per batch of a set's flights (common.smk: batches), as the ingest
+for _set in SETS:
+    for _k, _flights in enumerate(batches(_set)):
+
+        rule:
+            name:
+                batch_rule("filter", _set, _k)
+            input:
+                flights=[INGESTED.format(set=_set, flight=f) for f in _flights],
+                vehicle=vehicle_file(_set),
+            output:
+                **{key: [path.format(set=_set, flight=f) for f in _flights] for key, path in FILTERED.items()},
+            log:
+                f"results/logs/filter/{_set}/batch{_k}.log",
+            benchmark:
+                f"results/benchmarks/filter/{_set}/batch{_k}.tsv"
+            params:
+                overrides=FILTER_OVERRIDES,
+                names=[f"{_set}/{f}" for f in _flights],
+            conda:
+                "../envs/qr.yaml"
+            script:
+                "../scripts/filter.py"
 
 
 rule filter_summary:
     input:
-        nis=[p for s in SETS for p in flights_of(s, rules.filter.output.nis)],
-        states=[p for s in SETS for p in flights_of(s, rules.filter.output.states)],
-        flights=[p for s in SETS for p in flights_of(s, rules.ingest.output[0])],
+        nis=[p for s in SETS for p in flights_of(s, FILTERED["nis"])],
+        states=[p for s in SETS for p in flights_of(s, FILTERED["states"])],
+        flights=[p for s in SETS for p in flights_of(s, INGESTED)],
         vehicles=[vehicle_file(s) for s in SETS for _ in SETS[s]["flights"]],
     output:
         table="results/filter/summary.csv",
@@ -63,8 +74,9 @@ rule filter_summary:
 
 rule filter_figures:
     input:
-        flight=expand(rules.ingest.output[0], set=FIGURE_SET, flight=FIGURE_FLIGHT),
-        states=expand(rules.filter.output.states, set=FIGURE_SET, flight=FIGURE_FLIGHT),
+        flight=expand(INGESTED, set=FIGURE_SET, flight=FIGURE_FLIGHT),
+        states=expand(FILTERED["states"], set=FIGURE_SET, flight=FIGURE_FLIGHT),
+        vehicle=vehicle_file(FIGURE_SET),  # the rotor speeds' unit on the figure's axis
     output:
         [report(f"results/figures/filter_{q}.png", caption="../report/filter_figures.rst", category="Filter")
          for q in FILTER_FIGURES],

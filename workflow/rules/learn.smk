@@ -13,7 +13,7 @@ RESIDUAL_CARRY = DIAG_CARRY if DIAG_CARRY in SETS and DIAG_FIRST in SETS else No
 rule learn_dataset:
     input:
         # the full-flight estimates of the cross-fit files: the states the diagnosis labels from
-        estimates=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        estimates=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         vehicle=lambda wc: vehicle_file(wc.set),
     output:
         "results/learn/{set}/dataset.parquet",
@@ -95,9 +95,9 @@ CHAIN_PRIORITY = 10
 # starts from the first set's network carried over (rule carry_residual) and fine-tunes it.
 rule learn_residual:
     input:
-        flights=lambda wc: flights_of(wc.set, rules.ingest.output[0]),
-        nis=lambda wc: flights_of(wc.set, rules.filter.output.nis),
-        crossfit=lambda wc: flights_of(wc.set, rules.filter.output.crossfit),
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
         # (a function: rule evaluate_held_out is defined in evaluate.smk, included after this file)
         diagnosis=lambda wc: rules.evaluate_held_out.output.diagnosis.format(set=wc.set),
         carried=lambda wc: f"results/learn/carried/{wc.set}" if wc.set == RESIDUAL_CARRY else [],

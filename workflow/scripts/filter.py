@@ -1,10 +1,10 @@
-"""Snakemake rule `filter`: one canonical flight -> state table + NIS report (MLflow run: filter_summary)."""
+"""Snakemake rules `filter_<set>_<k>`: a batch of one set's canonical flights -> state tables + NIS reports
+(their MLflow runs: filter_summary)."""
 import sys
 
-from qr.stages.filter import run_with_overrides
+from qr.stages.filter import run_batch
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
-    run_with_overrides(snakemake.input.flight, snakemake.input.vehicle, snakemake.output.states,
-                       snakemake.output.nis, snakemake.params.overrides, snakemake.params.name, track=False,
-                       crossfit_out=snakemake.output.crossfit)
+    run_batch(snakemake.input.flights, snakemake.input.vehicle, snakemake.output.states, snakemake.output.nis,
+              snakemake.output.crossfit, snakemake.params.names, snakemake.params.overrides)

@@ -7,4 +7,4 @@ from qr.stages.filter import figures
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     figures(snakemake.input.flight[0], snakemake.input.states[0], Path(snakemake.output[0]).parent,
-            snakemake.params.title)
+            snakemake.params.title, snakemake.input.vehicle)

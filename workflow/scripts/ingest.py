@@ -1,10 +1,8 @@
-"""Snakemake rule `ingest`: one raw log -> canonical Parquet flight."""
+"""Snakemake rules `ingest_<set>_<k>`: a batch of one set's raw logs -> canonical Parquet flights."""
 import sys
 
-from qr.stages.ingest import ingest
-from qr.vehicle import load_vehicle
+from qr.stages.ingest import ingest_batch
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
-    vehicle = load_vehicle(snakemake.input.vehicle)
-    ingest(snakemake.input.raw, vehicle, snakemake.output[0], fmt=snakemake.params.format)
+    ingest_batch(snakemake.input.raw, snakemake.input.vehicle, snakemake.output.flights, fmt=snakemake.params.format)

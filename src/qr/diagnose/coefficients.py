@@ -14,7 +14,14 @@ coefficient is identified (:func:`evidence`, :func:`coefficient_checks`):
   across flights where there are several) makes the same statement on each;
 - consistent with the log's own evidence: a C_T or mass factor must agree with the hover thrust the
   rotor map gives against the weight (``HOVER_TOL``); C_Q is fixed only relative to J_zz
-  (J_z α_z = C_Q-torque): its statement is about the ratio.
+  (J_z α_z = C_Q-torque): its statement is about the ratio;
+- not a rate damping: a C_Q error scales the rotors' own yaw torque whatever the yaw rate, a yaw torque
+  that grows with the yaw rate is the rotor drag's moment at the hubs (the spec); an inertia error acts
+  through the angular acceleration, a torque opposing the body rate (the hubs' vertical rotor drag, the
+  airframe's own damping) is no inertia.  Where the set did not name it, the C_Q factor is fitted again
+  beside ``rotor_drag_moment`` (``DAMPING``), an inertia factor beside a rate damping ``-diag(c) ω``
+  (``RATE_DAMPING``, a check term outside the catalog): a factor that is no longer gross was a damping,
+  never a statement.
 
 What fails is listed as unresolved, with why: never a statement.
 """
@@ -29,6 +36,9 @@ from ..effects import CATALOG
 from ..identification.normal_equations import Columns, fit, inflation
 
 GROSS = 1.5  # a factor this far from 1, either way, is a wrong number in the file, not a small correction
+DAMPING = "rotor_drag_moment"  # the yaw-rate damping a C_Q factor is checked against
+RATE_DAMPING = "rate_damping"  # the body-rate damping an inertia factor is checked against (qr.effects.CHECK_TERMS)
+CHECKED_AGAINST = {"yaw_torque_gain": DAMPING, "inertia_error": RATE_DAMPING}
 VIF_MAX = 10.0  # variance inflation above which a parameter is a combination with another, not itself
 HOVER_TOL = 1.25  # a C_T or mass factor may disagree with the log's hover balance by this factor at most
 
@@ -40,6 +50,9 @@ class Evidence:
     inflation: list[float]  # per parameter: variance inflation in the named set's joint fit
     partner: list[str | None]  # per parameter: the effect it is most collinear with
     halves: tuple[list[float], list[float]]  # the parameters (file units) fitted on each half of the blocks
+    # the parameters (file units) fitted with the damping of CHECKED_AGAINST beside the named set, where the
+    # statistics hold it and the set did not name it (else None)
+    with_damping: list[float] | None = None
 
 
 def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
@@ -56,6 +69,11 @@ def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
     owner = [e for e in own for _ in CATALOG[e].params]
     B = stats.blocks
     halves = [fit(stats, own, np.arange(B // 2)), fit(stats, own, np.arange(B // 2, B))] if B >= 4 else None
+    damped = {}
+    for e in own:
+        c = CHECKED_AGAINST.get(e)
+        if c in stats.cols.effects and c not in named:
+            damped[e] = fit(stats, own + [c])[cols.slices[e]]
     out = {}
     for e in own:
         sl = cols.slices[e]
@@ -65,7 +83,8 @@ def evidence(stats, named: list[str], fixed=()) -> dict[str, Evidence]:
             partner.append(owner[max(others, key=lambda k: abs(corr[j, k]))] if others else None)
         neutral = np.asarray(CATALOG[e].neutral, float)
         out[e] = Evidence([float(v) for v in vif[sl]], partner,
-                          tuple((h[sl] + neutral).tolist() for h in halves) if halves else ([], []))
+                          tuple((h[sl] + neutral).tolist() for h in halves) if halves else ([], []),
+                          (damped[e] + neutral).tolist() if e in damped else None)
     return out
 
 
@@ -106,6 +125,15 @@ def _why_not(name, key, sym, factor, param, ev: Evidence | None, vehicle, hover_
         if not all(_gross(f) == _gross(factor) for f in half):
             return (f"the first and the second half of the training data give x{half[0]:.3g} and x{half[1]:.3g}: "
                     f"not the same statement")
+    if ev.with_damping is not None:
+        hp = dict(zip(CATALOG[name].params, ev.with_damping))
+        damped = [f for k, _, _, f, _, _ in _factors(name, hp, {}, vehicle) if k == key][0]
+        if _gross(damped) != _gross(factor):
+            if name == "yaw_torque_gain":
+                return (f"fitted beside a yaw-rate damping ({DAMPING}: the rotor drag's moment at the hubs) it is "
+                        f"x{damped:.3g}: the yaw torque grows with the yaw rate, which a C_Q error does not")
+            return (f"fitted beside a rate damping (a torque -c ω opposing the body rate, no catalog effect) it is "
+                    f"x{damped:.3g}: the torque grows with the body rate, which an inertia error does not")
     if key in ("thrust_coeff", "mass") and hover_ratio is not None and np.isfinite(hover_ratio):
         # hover: C_T-thrust x gain = (m + dm) g, so the file's rotor map gives m g x (mass factor / gain)
         predicted = 1 / factor if key == "thrust_coeff" else factor

@@ -10,7 +10,7 @@ from functools import reduce
 
 import numpy as np
 
-from ..effects import CATALOG, Signals, plausible_bounds
+from ..effects import CATALOG, Signals, lookup, plausible_bounds
 from ..identification import delay as delay_mod
 from ..identification.normal_equations import (BlockStats, Columns, accumulate, bounded_noise, design, fit, loss,
                                                 regressor_noise, row_sums)
@@ -41,8 +41,8 @@ def block_stats(prep: Prepared, vehicle, cols: Columns, y: np.ndarray | None = N
     n_blocks = int(prep.block[idx].max()) + 1 if idx.size else 0
     p = cols.size
     w0 = weights(prep.sd)
-    lb = np.concatenate([plausible_bounds(e, vehicle)[0] - CATALOG[e].neutral for e in cols.effects] + [[]])
-    ub = np.concatenate([plausible_bounds(e, vehicle)[1] - CATALOG[e].neutral for e in cols.effects] + [[]])
+    lb = np.concatenate([plausible_bounds(e, vehicle)[0] - lookup(e).neutral for e in cols.effects] + [[]])
+    ub = np.concatenate([plausible_bounds(e, vehicle)[1] - lookup(e).neutral for e in cols.effects] + [[]])
     n = prep.pair_offset
     if n and EIV:  # cross-fitting halves: rows i and i + n, labels and regressors swapped
         idx = idx[idx < n]

@@ -26,10 +26,12 @@ from ..config import to_dict
 from ..estimation.crossfit import SegmentEstimate
 from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
+from ..identification.normal_equations import Columns
 from ..rollout import EvaluateConfig
 from ..vehicle import Vehicle
 from .accelerometer import accelerometer_check
-from .coefficients import coefficient_checks, evidence
+from .coefficients import CHECKED_AGAINST, coefficient_checks, evidence
+from .core import block_stats
 from .fit import Fit, NamedEffect, identify
 from .flights import Flights
 from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
@@ -75,7 +77,8 @@ class Diagnosis:
     accelerometer: dict | None  # the force label against the accelerometer, where the log has one
     vehicle_file: list[dict]  # statements about the vehicle file's own numbers, where the data identify them
     vehicle_file_unresolved: list[dict]  # the gross factors not stated, each with why
-    extended_vehicle: Vehicle  # the nominal vehicle plus the named effects (and the torque remainder)
+    extended_vehicle: Vehicle  # the nominal vehicle plus the named effects (and the torque remainder); the
+    # nominal vehicle on a flight the model does not describe
     torque_remainder: TorqueRemainder | None = None  # the learned torque remainder (a hybrid), where asked
     refinement: object | None = None  # qr.diagnose.refine.Refinement (diagnose.refine=rollout), or None
 
@@ -97,12 +100,16 @@ class Diagnosis:
 def _verdict(d: Diagnosis) -> str:
     h, misfit = d.held_out, d.held_out.misfit
     if misfit:
-        return (f"The model does not describe this flight: even extended, the held-out residual is "
+        found = "".join(f"Identified {_effect_said(e)}, which alone removes {percent(e.explained_fraction)} of the "
+                        "held-out residual. " for e in d.effects)
+        return (f"{found}The model does not describe this flight: even extended, the held-out residual is "
                 f"{100 * misfit['force_of_weight']:.0f} % of the weight in force and "
                 f"{100 * misfit['torque_of_weight_at_arm']:.0f} % of the weight's torque at the arm "
-                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so nothing is named. Look at the "
-                "log's frames and units (the convention checks in diagnosis.json), its time stamps and offsets "
-                "(qr ingest prints them), the vehicle file (mass, thrust_coeff, rotor_speed_unit, layout) and "
+                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so "
+                + ("nothing else is named and nothing is written into the vehicle file. " if d.effects else
+                   "nothing is named. ")
+                + "Look at the log's frames and units (the convention checks in diagnosis.json), its time stamps and "
+                "offsets (qr ingest prints them), the vehicle file (mass, thrust_coeff, rotor_speed_unit, layout) and "
                 "events no model holds (ground contact, a tether, a crash).")
     if not d.effects:
         rem = d.remainder
@@ -115,8 +122,47 @@ def _verdict(d: Diagnosis) -> str:
                 f"held-out data).{tail}")
     names = ", ".join(e.name for e in d.effects)
     gain = 1 - h.extended_loss / h.nominal_loss
-    return (f"Named {names}; the extended model removes {100 * gain:.0f} % of the nominal model's weighted "
-            f"held-out residual variance (now {h.extended_loss:.2f} x the noise floor's variance).")
+    return (f"Named {names}; the extended model removes {percent(gain)} of the nominal model's weighted "
+            f"held-out residual variance (now {h.extended_loss:.2f} x the noise floor's variance); "
+            f"{_left_above_noise(h)}.")
+
+
+# an axis whose held-out RMSE after extension is at most this many times the noise floor's is "at the noise
+# floor" in the verdict (the floor is an estimate: a few tens of per cent above it is within its reach)
+AT_NOISE = 1.5
+AXIS_NAMES = ("force x", "force y", "force z", "roll torque", "pitch torque", "yaw torque")
+
+
+def _left_above_noise(h: HeldOutCheck) -> str:
+    """Which held-out axes the extension leaves above the noise floor (RMSE ratio, as the report's table):
+    a variance removed in bulk by one axis (a mass error's force) can hide torques left at 3x the floor."""
+    ratio = [e / f if f > 0 else float("inf") for e, f in zip(h.extended_rmse, h.noise_floor_rmse)]
+    above = [(a, r) for a, r in zip(AXIS_NAMES, ratio) if r > AT_NOISE]
+    if not above:
+        return f"every axis is within {AT_NOISE:g} x the noise floor's RMSE"
+    return ("still above the noise floor's RMSE in " + ", ".join(f"{a} ({r:.1f} x)" for a, r in above))
+
+
+def percent(x: float) -> str:
+    """A share in per cent, with the digits it needs never to round to 100 % or 0 % unless it is one of
+    them (87 %, 99.6 %, 0.2 %)."""
+    p = 100 * x
+    for digits in range(6):
+        said = f"{p:.{digits}f}"
+        if float(said) not in (0.0, 100.0) or p in (0.0, 100.0):
+            break
+    return f"{said} %"
+
+
+def _effect_said(e) -> str:
+    """``wind_force (fx = 3.43 ± 0.01 N, ...)``: the stated parameters with their s.e. and units."""
+    from ..effects import CATALOG
+
+    st = e.stated()
+    units = dict(zip(CATALOG[e.name].params, CATALOG[e.name].units))
+    par = ", ".join(f"{k} = {v:.3g} ± {st['stderr'].get(k, float('nan')):.2g}"
+                    + (f" {units[k]}" if units.get(k, "-") != "-" else "") for k, v in st["parameters"].items())
+    return f"{e.name} ({par})"
 
 
 def _quiet(msg: str) -> None:
@@ -136,17 +182,21 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     labels = make_labels(states, [e.halves for e in estimates], vehicle, cfg, on_labels)
     fitted = identify(labels, vehicle, cfg, settings.seed, say)
     supported, not_named = held_out_support(fitted, vehicle, cfg, settings.seed, say)
-    final, held_out, dropped = check_held_out(supported, vehicle)
+    final, held_out, dropped = check_held_out(supported, vehicle, cfg, settings.seed)
     effects = [e.in_vehicle() for e in final.effects]
     say("replay")
     replay = replay_all(states, rows, vehicle, effects, cfg.horizon_s, final.labels.full.windows)
     extended = vehicle.with_changes(effects=vehicle.effects + effects)
-    torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say)
+    # (no learned remainder on a flight the model does not describe: nothing is written into the vehicle)
+    torque_rem, hybrid = _torque_remainder(final, extended, vehicle, flights, cfg.torque_remainder_ridge, say) \
+        if not held_out.misfit else (None, None)
     rollout, beyond, accelerometer = _after_the_fit(states, rows, vehicle, final, held_out, effects, hybrid,
                                                     settings, say)
     refinement, written = _refined(states, rows, vehicle, final, hybrid or extended, settings, say,
                                    described=not held_out.misfit)
     statements, unresolved = _vehicle_file(final, vehicle, vehicle_file or vehicle.name, flights)
+    if held_out.misfit:  # what the flight shows is stated; nothing of it goes into the vehicle, or about its file
+        written, statements, unresolved = vehicle, [], []
     return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
                      beyond, accelerometer, statements, unresolved, written, torque_rem, refinement)
 
@@ -184,8 +234,14 @@ def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[
     """Statements about the vehicle file's own numbers (:func:`coefficient_checks`), from the parameters
     as diagnosis.json states them and the log's hover balance."""
     hover = hover_ratio(pd.concat(flights.measured, ignore_index=True), vehicle)
+    stats = final.stats
+    own = [e for e in final.named if e not in final.fixed]
+    checks = [c for e, c in CHECKED_AGAINST.items() if e in own and c not in final.named]
+    if any(c not in stats.cols.effects for c in checks):
+        # a C_Q or inertia factor is checked against a rate damping, a candidate or not
+        stats = block_stats(final.labels.cross, vehicle, Columns.of(own + checks, final.force_only))
     return coefficient_checks([e.stated() for e in final.effects], vehicle, vehicle_file,
-                              evidence(final.stats, final.named, final.fixed), hover)
+                              evidence(stats, final.named, final.fixed), hover)
 
 
 def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,

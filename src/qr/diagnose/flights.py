@@ -29,8 +29,9 @@ class Flights:
 
 
 def check_flights(names: list[str], measured: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig,
-                  say=lambda msg: None) -> Flights:
-    """The flights, each checked (conventions, airborne segments, length) and its left-out rows said."""
+                  say=lambda msg: None, vehicle_file=None) -> Flights:
+    """The flights, each checked (conventions, airborne segments, length) and its left-out rows said
+    (``vehicle_file``: the file ``vehicle`` was read from, named in a fix)."""
     # the training part of a lone flight must hold a block per cross-validation fold
     blocks = cfg.selection.folds if len(names) == 1 else 1
     need = (blocks * cfg.block_s + cfg.gap_s / 2) / cfg.train_fraction
@@ -38,7 +39,8 @@ def check_flights(names: list[str], measured: list[pd.DataFrame], vehicle, cfg: 
     for f, m in zip(names, measured):
         fs = flight_segments(m, vehicle, 2 * cfg.trim_s + cfg.block_s, f)
         checks.append({"flight": str(f), "checks": [r.as_dict() for r in conventions.require(
-            m, vehicle, f, cfg.skip_checks, "diagnose.skip_checks=[{name}] at the end of the command")]})
+            m, vehicle, f, cfg.skip_checks, "diagnose.skip_checks=[{name}] at the end of the command",
+            vehicle_file)]})
         _check_length(f, fs, need, cfg, blocks)
         split.append(fs)
     for f, fs in zip(names, split):

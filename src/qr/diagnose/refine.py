@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from ..effects import CATALOG, plausible_bounds
+from ..effects import CATALOG, TIED, plausible_bounds
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
 from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, Windows, score_plant, summary, pool, at
@@ -96,6 +96,7 @@ class Parameter:
     physical: tuple[float, float]  # its physical range
     bound_hit: str | None  # "lower" / "upper" when the rollout's optimum sits on a bound
     reference: float  # the vehicle's own value the parameter scales or adds to (J_ii for dJ; 1 for gains)
+    followers: tuple = ()  # named effects that share this parameter (qr.effects.TIED: one rotor drag's moment)
 
     @property
     def in_range(self) -> bool:
@@ -146,7 +147,7 @@ class Refinement:
         for e in named_effects:
             params = dict(e["parameters"])
             for p in self.parameters:
-                if p.named and p.effect == e["name"]:
+                if p.named and (p.effect == e["name"] or e["name"] in p.followers):
                     params[p.name] = p.written
             out.append({"name": e["name"], "parameters": params})
         names = [e["name"] for e in named_effects]
@@ -180,6 +181,7 @@ class Refinement:
             "windows": self.windows, "horizon": H, "stride": self.stride, "iterations": self.iterations,
             "stopped": self.stopped, "wall_s": self.wall_s,
             "parameters": [{"effect": p.effect, "parameter": p.name, "label": p.label, "named": p.named,
+                            **({"shared_with": list(p.followers)} if p.followers else {}),
                             "one_step": p.one_step, "one_step_stderr": p.one_step_se, "rollout": p.rollout,
                             "rollout_stderr": p.rollout_se, "written": p.written, "bounds": list(p.bounds),
                             "physical_range": list(p.physical), "reference": p.reference, "bound_hit": p.bound_hit, "in_range": p.in_range,
@@ -313,6 +315,7 @@ class _Spec:
     phys_hi: float
     scale: float
     reference: float
+    followers: tuple = ()  # named effects that take this parameter too (TIED)
 
 
 # A propeller's torque-to-thrust ratio κ = C_Q / C_T = (C_P / 2π C_T) D: fixed-pitch propellers have
@@ -358,7 +361,11 @@ def _specs(vehicle, effects: list[dict], settings: RefineSettings) -> tuple[list
                                   "the rotor's own dynamics" if vehicle.rotor_input == "speed" else
                                   "not a candidate: the rollout drives the plant with the logged signal and has no "
                                   "rotor state (not implemented for motor commands)")
+    # effects named with the one they are tied to (TIED) share its parameters: refined once, as that one's
+    follows = {f: g[0] for g in TIED if set(g) <= set(named) for f in g[1:]}
     for e in [*effects, *coeff]:
+        if e["name"] in follows:
+            continue
         eff = CATALOG[e["name"]]
         lo, hi = plausible_bounds(e["name"], vehicle)
         for k, p in enumerate(eff.params):
@@ -378,14 +385,16 @@ def _specs(vehicle, effects: list[dict], settings: RefineSettings) -> tuple[list
                 width = float(hi[k] - lo[k]) if np.isfinite(hi[k] - lo[k]) else 0.0
                 scale = max(abs(x), se or 0.0, 1e-3 * width, 1e-12)
             out.append(_Spec(e["name"], p, e in effects, min(max(x, float(lo[k])), float(hi[k])), se, float(lo[k]),
-                             float(hi[k]), plo, phi, scale, ref))
+                             float(hi[k]), plo, phi, scale, ref,
+                             tuple(f for f, lead in follows.items() if lead == e["name"])))
     return out, why
 
 
 def _effects_of(specs: list[_Spec], theta: np.ndarray) -> list[dict]:
     d: dict = {}
     for s, x in zip(specs, theta):
-        d.setdefault(s.effect, dict(zip(CATALOG[s.effect].params, CATALOG[s.effect].neutral)))[s.name] = float(x)
+        for e in (s.effect, *s.followers):
+            d.setdefault(e, dict(zip(CATALOG[e].params, CATALOG[e].neutral)))[s.name] = float(x)
     return [{"name": e, "parameters": k} for e, k in d.items()]
 
 
@@ -517,7 +526,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
                                                                    else None)
         params.append(Parameter(s.effect, s.name, _label(s), s.named, s.start, s.start_se, float(wanted[k]),
                                 None if hit or not np.isfinite(se[k]) else float(se[k]), float(wanted[k]),
-                                (s.lo, s.hi), (s.phys_lo, s.phys_hi), hit, s.reference))
+                                (s.lo, s.hi), (s.phys_lo, s.phys_hi), hit, s.reference, s.followers))
     held = np.array([not p.in_range or (p.bound_hit is not None and p.rollout != p.one_step) or (p.named and p.disagree)
                      for p in params])
     written = wanted
@@ -545,7 +554,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
 
 
 def _label(s: _Spec) -> str:
-    return LABELS.get((s.effect, s.name)) or f"{s.effect}.{s.name}"
+    own = LABELS.get((s.effect, s.name)) or f"{s.effect}.{s.name}"
+    return own + "".join(f" = {f}.{s.name}" for f in s.followers)
 
 
 def _median_dt(pieces: list[Windows]) -> float:

@@ -12,10 +12,11 @@ import numpy as np
 from matplotlib.ticker import MaxNLocator
 
 from ..atomic import write_text
-from ..effects import CATALOG
+from ..effects import CATALOG, with_unit
 from ..report import figures
 from ..report.background import BackgroundFigure
 from ..rollout import table
+from ..rotors import SPEED_UNIT_NAMES
 from .accelerometer import statement as accelerometer_statement
 from .core import AXES
 from .diagnosis import Diagnosis
@@ -94,16 +95,21 @@ def _how_far(d: Diagnosis) -> list[str]:
     return L + [""]
 
 
-def _named_causes(d: Diagnosis, doc: dict) -> list[str]:
+def _named_causes(d: Diagnosis, doc: dict, vehicle=None) -> list[str]:
     L = ["## Named causes\n"]
     if doc["effects"]:
         L += ["| effect | parameters (± block-bootstrap s.e.) | explained fraction | confounded with |",
               "|---|---|---:|---|"]
         for e in doc["effects"]:
-            par = ", ".join(f"{k} = {v:.4g} ± {e['stderr'].get(k, float('nan')):.2g}" for k, v in e["parameters"].items())
+            par = ", ".join(f"{k} = {v:.4g} ± " + with_unit(e["name"], k, e["stderr"].get(k, float("nan")), ".2g", vehicle)
+                            for k, v in e["parameters"].items())
             L.append(f"| `{e['name']}` | {par} | {e['explained_fraction']:.3f} | "
                      f"{', '.join(e['confounded_with']) or '-'} |")
         L.append("")
+        if d.held_out.misfit:
+            L.append("The model does not describe this flight (above): its largest effect is stated, fitted alone, "
+                     "with its share of the held-out residual alone; nothing else is named, and extended_vehicle.yaml "
+                     "is the vehicle as given.\n")
         for e in doc["effects"]:
             L.append(f"- `{e['name']}`: {CATALOG[e['name']].doc}.")
             if e["confounded_with"]:
@@ -232,6 +238,9 @@ def _closing(d: Diagnosis, figs: dict) -> list[str]:
         if d.accelerometer else []
     L.append("## Figures\n")
     L += [f"### {title}\n\n![{title}](figures/{name})\n" for title, name in figs.items()]
+    if not d.described:
+        return L + ["## Extended model\n", "`extended_vehicle.yaml`: the vehicle as given, nothing added (the model "
+                    "does not describe this flight; what it identifies is in diagnosis.json's effects).\n"]
     return L + ["## Extended model\n",
                 "`extended_vehicle.yaml`: the nominal vehicle plus the named effects; `qr synth`, the replay and the "
                 "simulation study accept it.\n"]
@@ -246,13 +255,13 @@ def _refinement(doc: dict) -> list[str]:
     return report_lines(doc["refine"])
 
 
-def write_report(outdir: Path, d: Diagnosis, figs: dict) -> None:
+def write_report(outdir: Path, d: Diagnosis, figs: dict, vehicle=None) -> None:
     """``outdir/report.md``: the answer first, then how far the nominal model is off, what is named and
     why, the vehicle file, the selection's evidence, replay, rollout, and the figures ``figs`` (title ->
-    file name under ``figures/``)."""
+    file name under ``figures/``); ``vehicle``: its rotor-speed unit in the parameters' units."""
     doc = stated(d)
     L = [*_opening(doc), *_data_used(doc), *_conventions(doc["conventions"]), *_how_far(d),
-         *_named_causes(d, doc), *_vehicle_file(doc), *_selection(doc), *_anatomy_table(d.held_out.anatomy),
+         *_named_causes(d, doc, vehicle), *_vehicle_file(doc), *_selection(doc), *_anatomy_table(d.held_out.anatomy),
          *_arbitration(doc), *_slow_torque_lines(doc["selection"]["slow_torque"]), *_rejected(doc), *_beyond(d),
          *_replay(doc), *_rollout(d), *_torque_remainder(doc), *_refinement(doc), *_closing(d, figs)]
     write_text(outdir / "report.md", "\n".join(L) + "\n")
@@ -358,7 +367,8 @@ def anatomy_figure(prep, vehicle, path: Path) -> None:
     T, _ = vehicle.rotors.thrust_torque(s.u)
     regs = {"v_bx (m/s)": s.v_b[:, 0], "v_by (m/s)": s.v_b[:, 1], "v_bz (m/s)": s.v_b[:, 2],
             "height (m)": s.p[:, 2] - vehicle.ground_z, "thrust T (N)": T,
-            "rotor speed u1..u4": s.u}  # the rotors share a panel: a weak one stands out by its colour
+            # the rotors share a panel: a weak one stands out by its colour
+            f"rotor speed u1..u4 ({SPEED_UNIT_NAMES.get(vehicle.rotor_speed_unit, vehicle.rotor_speed_unit)})": s.u}
     # no grid: a scatter needs none, and 36 panels' grid lines are much of the drawing time
     fig, axs = figures.subplots(6, len(regs), figsize=(2.0 * len(regs), 9), sharex="col", sharey="row",
                                 grid=False)
@@ -376,7 +386,7 @@ def anatomy_figure(prep, vehicle, path: Path) -> None:
                 if i == 0:
                     ax.legend(fontsize=6, loc="upper left", ncol=2)
             if j == 0:
-                ax.set_ylabel(AXES[i], fontsize=7)
+                ax.set_ylabel(AXES[i] + (" (N)" if i < 3 else " (N m)"), fontsize=7)
                 ax.yaxis.set_major_locator(MaxNLocator(4))
             if i == 5:
                 ax.set_xlabel(name, fontsize=7)

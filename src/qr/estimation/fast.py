@@ -29,15 +29,6 @@ def _fact(n):
 
 
 @nb.njit(cache=True)
-def chain_phi(m, dt):
-    P = np.eye(m)
-    for i in range(m):
-        for j in range(i + 1, m):
-            P[i, j] = dt ** (j - i) / _fact(j - i)
-    return P
-
-
-@nb.njit(cache=True)
 def chain_q_into(m, dt, q, exact, Q):
     """``Q`` := the chain's discrete process noise (written in place: the filters call it every sample)."""
     if not exact:

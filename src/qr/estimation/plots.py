@@ -23,11 +23,11 @@ FIGURES = {  # file stem -> (title, raw columns, filtered columns, unit)
     "position": ("Filtered position p (thesis Fig. 4.2)", ["px", "py", "pz"], "m"),
     "velocity": ("Filtered velocity v (thesis Fig. 4.3)", ["vx", "vy", "vz"], "m/s"),
     "acceleration": ("Filtered acceleration a (thesis Fig. 4.4)", ["ax", "ay", "az"], "m/s²"),
-    "quaternion": ("Filtered quaternion q (thesis Fig. 4.5)", ["qw", "qx", "qy", "qz"], "-"),
+    "quaternion": ("Filtered quaternion q (thesis Fig. 4.5)", ["qw", "qx", "qy", "qz"], "dimensionless"),
     "angular_velocity": ("Filtered angular velocity ω, body (thesis Fig. 4.6)", ["wx", "wy", "wz"], "rad/s"),
     "angular_acceleration": ("Filtered angular acceleration α, body (thesis Fig. 4.7)", ["alx", "aly", "alz"],
                              "rad/s²"),
-    "rotors": ("Filtered rotor speeds u (thesis Fig. 4.8)", ["u1", "u2", "u3", "u4"], "vehicle unit"),
+    "rotors": ("Filtered rotor speeds u (thesis Fig. 4.8)", ["u1", "u2", "u3", "u4"], None),  # the vehicle's
 }
 
 
@@ -58,8 +58,12 @@ def raw_derivatives(flight: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
-def filtered_vs_raw(flight: pd.DataFrame, states: pd.DataFrame, outdir: str | Path, title: str = "") -> list[Path]:
-    """One PNG per quantity (thesis Figs. 4.2–4.8) into ``outdir/filter_<quantity>.png``."""
+def filtered_vs_raw(flight: pd.DataFrame, states: pd.DataFrame, outdir: str | Path, title: str = "",
+                    rotor_unit: str | None = None) -> list[Path]:
+    """One PNG per quantity (thesis Figs. 4.2–4.8) into ``outdir/filter_<quantity>.png``; ``rotor_unit``: the
+    vehicle file's ``rotor_speed_unit`` (unknown: the axis says so)."""
+    from ..rotors import SPEED_UNIT_NAMES
+
     raw = raw_derivatives(flight)
     t = states["t"].to_numpy() - states["t"].iloc[0]
     paths = []
@@ -78,7 +82,7 @@ def filtered_vs_raw(flight: pd.DataFrame, states: pd.DataFrame, outdir: str | Pa
             span = np.nanmax(finite) - np.nanmin(finite)
             pad = 0.6 * span + 1e-9
             ax.set_ylim(np.nanmin(finite) - pad, np.nanmax(finite) + pad)  # raw noise may be 100x the signal
-            ax.set_ylabel(f"{c} ({unit})")
+            ax.set_ylabel(f"{c} ({unit or SPEED_UNIT_NAMES.get(rotor_unit, 'rotor_speed_unit of the vehicle file')})")
         axes[0].legend(loc="upper right", fontsize=7, ncol=4)
         axes[0].set_title(f"{fig_title}{' — ' + title if title else ''}")
         axes[-1].set_xlabel("t (s)")
@@ -107,7 +111,7 @@ def nis_figure(states: pd.DataFrame, report: dict, path: str | Path, title: str 
         ax.set_title(f"{name}: mean NIS {mean:.3g} (χ²({dof}) expects {dof}; band of the mean "
                      f"{stats['band'][0]:.3g}–{stats['band'][1]:.3g}) — {verdict}" if mean is not None else name,
                      fontsize=8)
-        ax.set_ylabel("NIS")
+        ax.set_ylabel("NIS (dimensionless)")
         if len(cols) > 1:
             ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1].set_xlabel("t (s)")

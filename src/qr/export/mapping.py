@@ -4,15 +4,17 @@ One place for the unit conversions (qr's rotor-speed unit → rad/s) and for the
 simulators receive: the TRUE plant's parameter vector (:func:`qr.sim.plant.true_params`), so an
 export carries exactly the physics ``qr synth``, the replay and the rollout integrate.  Each
 simulator module (:mod:`qr.export.rotorpy`, :mod:`qr.export.px4_gz`, :mod:`qr.export.mujoco`)
-turns that vector into its files and a list of :class:`Row` (the simulator's key, the value in its
-units, exact / approximate with the condition / impossible with the term's size and what the
-export does instead); :func:`render` writes them as ``mapping.md``.
+turns that vector into its files and a list of :class:`Row`, one for every key and named effect of
+the vehicle file (the simulator's key, the value in its units, the formula that gives it from the
+file's numbers, exact / approximate with the condition / impossible with the term's size and what
+the export does instead); :func:`render` writes them as ``mapping.md``.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -38,6 +40,7 @@ class Row:
     value: str  # the value in the simulator's units
     status: str  # EXACT, APPROXIMATE or IMPOSSIBLE
     note: str  # the conversion, the condition of an approximation, or the size and what is done instead
+    formula: str = ""  # ``value`` from the vehicle file's numbers (the grammar: docs/export.md, "Formulas")
 
 
 @dataclass(frozen=True)
@@ -58,12 +61,14 @@ class Plant:
     hover: float  # rad/s, rotor speed of four equal rotors carrying m g with the mean k_thrust
     P: np.ndarray  # the TRUE plant's parameter vector (qr.sim.plant), for the remaining terms
     unit: float  # rad/s per vehicle rotor-speed unit
+    hub_z: float = 0.0  # m, the rotor hubs' height above the CG (the vehicle file's hub_z)
 
     @property
     def rotor_pos(self) -> np.ndarray:
-        """(4, 3) m: rotor hubs relative to the CG (rotor plane through the CG)."""
+        """(4, 3) m: rotor hubs relative to the CG (their height: hub_z)."""
         r = np.zeros((len(self.yaw_signs), 3))
         r[:, :2] = self.rotor_xy - self.cg
+        r[:, 2] = self.hub_z
         return r
 
     @property
@@ -87,7 +92,7 @@ def plant_of(vehicle) -> Plant:
                  yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[pl.P_CQGAIN] / f**2,
                  cg=P[pl.P_CG:pl.P_CG + 2].copy(), tau_m=float(P[pl.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
-                 P=P, unit=f)
+                 P=P, unit=f, hub_z=vehicle.hub_z)
 
 
 def g(x: float) -> str:
@@ -96,11 +101,9 @@ def g(x: float) -> str:
 
 
 def effect_value(vehicle, name: str) -> str:
-    """``'k=0.00069'``: an effect's parameters as the vehicle file has them."""
-    for e in vehicle.effects:
-        if e["name"] == name:
-            return ", ".join(f"{k}={g(v)}" for k, v in e["parameters"].items())
-    return ""
+    """``'k=0.00069'``: an effect's parameters as the vehicle file has them (an effect listed twice: both)."""
+    return "; ".join(", ".join(f"{k}={g(v)}" for k, v in e["parameters"].items())
+                     for e in vehicle.effects if e["name"] == name)
 
 
 def present(vehicle) -> list[str]:
@@ -112,17 +115,119 @@ def present(vehicle) -> list[str]:
     return out
 
 
+# ---- formulas: each row's number from the vehicle file's, as text a person reads and a test evaluates ----
+# Symbols: the file's numbers (m, J_xx…, C_T, C_Q, τ_m, u_min, u_max, ground_z; rotor i's x_i, y_i, s_i =
+# yaw_sign and d_i = motor_imbalance's d<i>), an effect's parameter as ``effect.param``, f, g, n, ω_h.
+# Operators: + − · / ², √(…), round(…); ``_i`` expands over the rotors; a comma separates the values.
+
+def has(vehicle, name: str) -> bool:
+    return any(e["name"] == name for e in vehicle.effects)
+
+
+def _plus(base: str, term: str | None) -> str:
+    return f"{base} + {term}" if term else base
+
+
+def fx_mass(vehicle) -> str:
+    return _plus("m", "mass_error.dm" if has(vehicle, "mass_error") else None)
+
+
+def fx_inertia(vehicle) -> list[str]:
+    err = has(vehicle, "inertia_error")
+    return [_plus(f"J_{a}", f"inertia_error.dJ{a}" if err else None) for a in ("xx", "yy", "zz")]
+
+
+def fx_k_thrust(vehicle, mean: bool = False) -> str:
+    """Rotor i's thrust per (rad/s)² (``mean``: their mean)."""
+    out = "C_T"
+    if has(vehicle, "thrust_gain"):
+        out += " · thrust_gain.gain"
+    if has(vehicle, "motor_imbalance"):
+        n = vehicle.rotors.n
+        out += (" · (1 + (" + " + ".join(f"d_{i}" for i in range(1, n + 1)) + ") / n)") if mean else " · (1 + d_i)"
+    return out + " / f²"
+
+
+def fx_k_yaw(vehicle) -> str:
+    """C_Q per (rad/s)², the yaw-torque gain applied."""
+    return "C_Q" + (" · yaw_torque_gain.gain" if has(vehicle, "yaw_torque_gain") else "") + " / f²"
+
+
+def fx_cg(vehicle) -> tuple[str, str]:
+    return ("cg_offset.rx", "cg_offset.ry") if has(vehicle, "cg_offset") else ("0", "0")
+
+
+def fx_minus(a: str, b: str) -> str:
+    return a if b == "0" else f"{a} − {b}"
+
+
+def fx_effect(vehicle, name: str, params) -> list[str]:
+    return [f"{name}.{p}" for p in params]
+
+
+def symbols(vehicle, pp: Plant) -> str:
+    """The line of ``mapping.md`` that defines the formulas' symbols, with this vehicle's values."""
+    u = vehicle.rotor_speed_unit
+    n = vehicle.rotors.n
+    mass = fx_mass(vehicle) if not has(vehicle, "mass_error") else f"({fx_mass(vehicle)})"
+    return ("Formulas (column *formula*; docs/export.md, \"Formulas\") use the vehicle file's numbers: m, J_xx, "
+            "J_yy, J_zz, C_T, C_Q, τ_m (motor_time_constant), u_min, u_max (rotor_speed_min, rotor_speed_max), "
+            "ground_z, hub_z; rotor i's x_i, y_i, s_i (yaw_sign) and d_i (motor_imbalance's d<i>); an effect's parameter "
+            "as effect.param (an effect listed twice: added, gains multiplied); "
+            f"f = {g(pp.unit)} rad/s per {u}; g = 9.81 m/s²; n = {n} rotors; "
+            f"ω_h = √({mass} · g / Σ_i k_i) = {g(pp.hover)} rad/s, the hover rotor speed, with k_i = "
+            f"{fx_k_thrust(vehicle)}. `_i` repeats a formula for each rotor; commas separate the values.")
+
+
+# ---- the learned terms' size ---------------------------------------------------------------------------------
+
+def force_size(n: float, weight: float) -> str:
+    return f"{n:.3g} N ({100 * n / weight:.3g} % of the weight)"
+
+
+def torque_size(n: float, pp: Plant) -> str:
+    return f"{n:.3g} N m ({100 * n / (pp.weight / 4 * pp.arm):.3g} % of one rotor's hover thrust at the arm)"
+
+
+def residual_size(vehicle, pp: Plant) -> str:
+    """The learned wrench's size: its RMS over the training flights (as ``qr learn residual`` recorded it in the
+    vehicle file), and its value at hover (level, at rest, every rotor at the hover speed)."""
+    from .. import residual as rs
+
+    net = vehicle.residual
+    phi = rs.features(net.inputs, np.zeros((1, 3)), np.zeros((1, 3)), np.array([[0.0, 0.0, -1.0]]),
+                      np.full((1, vehicle.rotors.n), vehicle.hover_speed), net.rotor_speed_scale)
+    w = rs.forward(net, phi)[0]
+    hover = (f"at hover (level, at rest, rotors at ω_h): force {force_size(float(np.linalg.norm(w[:3])), pp.weight)}, "
+             f"torque {torque_size(float(np.linalg.norm(w[3:])), pp)}")
+    rec = rs.recorded_size(vehicle.raw.get("residual"))
+    if rec is None:
+        return ("its RMS over the training flights is not recorded in this file (a qr learn residual before the "
+                "record: train again to have it); " + hover)
+    flights = ", ".join(rec["flights"]) or "-"
+    return (f"RMS over the {rec['samples']} samples of its training windows ({len(rec['flights'])} flight(s): "
+            f"{flights}): force {force_size(rec['rms_force'], pp.weight)} (x, y, z: "
+            + ", ".join(f"{x:.3g}" for x in rec["rms_force_xyz"]) + f" N), torque {torque_size(rec['rms_torque'], pp)}"
+            " (x, y, z: " + ", ".join(f"{x:.3g}" for x in rec["rms_torque_xyz"]) + " N m); " + hover)
+
+
+def residual_item(vehicle) -> str:
+    """The ``qr value`` of a residual row: the network as the vehicle file describes it."""
+    net = vehicle.residual
+    return (f"MLP {net.layers} ({net.activation}) from {', '.join(net.inputs)} to a body force and torque "
+            f"({Path(vehicle.raw['residual']['model']).name})")
+
+
 def sizes(pp: Plant) -> dict[str, str]:
     """The size of each term a simulator may lack, stated at the hover rotor speed and ``V_REF`` m/s:
     forces as a fraction of the weight, torques as a fraction of one rotor's hover thrust at the arm."""
     P, W = pp.P, pp.weight
-    tq = W / 4 * pp.arm
 
     def force(n):
-        return f"{n:.3g} N ({100 * n / W:.3g} % of the weight)"
+        return force_size(n, W)
 
     def torque(n):
-        return f"{n:.3g} N m ({100 * n / tq:.3g} % of one rotor's hover thrust at the arm)"
+        return torque_size(n, pp)
 
     lin = P[pl.P_LIN:pl.P_LIN + 3]
     quad = P[pl.P_QUAD:pl.P_QUAD + 3]
@@ -138,6 +243,9 @@ def sizes(pp: Plant) -> dict[str, str]:
         "cg_offset": torque(float(np.linalg.norm(P[pl.P_CG:pl.P_CG + 2])) * W),
         "torque_bias": torque(float(np.linalg.norm(P[pl.P_TBIAS:pl.P_TBIAS + 3]))),
         "blade_flapping": f"{torque(abs(P[pl.P_FLAP]) * V_REF)} at {V_REF:g} m/s",
+        "rotor_drag_moment": f"{torque(P[pl.P_RDM] * pp.hover / pp.unit * float(np.sum(pp.rotor_pos[:, :2] ** 2)))} "
+                             "at 1 rad/s of yaw rate and hover rotor speed",
+        "translational_lift": f"{force(4 * P[pl.P_TLIFT] * V_REF**2)} at {V_REF:g} m/s",
         "actuator_delay": f"{1000 * P[pl.P_DELAY]:.3g} ms between the rotor speed and its wrench",
         "marker_offset": f"{1000 * float(np.linalg.norm(P[pl.P_MARKER:pl.P_MARKER + 3])):.3g} mm "
                          "between the tracked point and the CG",
@@ -146,41 +254,111 @@ def sizes(pp: Plant) -> dict[str, str]:
     }
 
 
-def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list[str], version: str) -> str:
+def untied_moment(P) -> str:
+    """A simulator whose rotor drag acts at the hubs, when rotor_drag_moment's k is not rotor_drag's: what its moment is."""
+    if not P[pl.P_RDRAG]:
+        return "the moment is absent (rotor_drag not named)"
+    return f"its moment has rotor_drag's k ({g(P[pl.P_RDRAG])}), not rotor_drag_moment's ({g(P[pl.P_RDM])})"
+
+
+def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list[str], version: str,
+           pp: Plant | None = None) -> str:
     """``mapping.md``: what each number of the vehicle became in the simulator's files."""
     counts = {s: sum(r.status == s for r in rows) for s in (EXACT, APPROXIMATE, IMPOSSIBLE)}
     lines = [f"# {vehicle.name} for {target}: the mapping", "",
              f"Written by `qr export {vehicle_path} --to {target}` (qr {version}). {len(rows)} items: "
              f"{counts[EXACT]} exact, {counts[APPROXIMATE]} approximate, {counts[IMPOSSIBLE]} impossible.", "",
-             *intro, "",
-             "| qr item | qr value | simulator key | simulator value | mapping | conversion, condition or size |",
-             "|---|---|---|---|---|---|"]
+             *intro, "", *([symbols(vehicle, pp), ""] if pp is not None else []),
+             "| qr item | qr value | simulator key | simulator value | formula | mapping | conversion, condition or size |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r.item} | {r.qr_value} | {r.key} | {r.value} | {r.status} | {r.note} |")
+        lines.append(f"| {r.item} | {r.qr_value} | {r.key} | {r.value} | {r.formula or '-'} | {r.status} | {r.note} |")
     return "\n".join(lines) + "\n"
 
 
-def common_rows(vehicle, pp: Plant, keys: dict[str, tuple[str, str]]) -> list[Row]:
-    """Rows every simulator has in the same way: mass, inertia, C_T, C_Q, rotor speed unit.
+def common_rows(vehicle, pp: Plant, keys: dict[str, tuple]) -> list[Row]:
+    """Rows every simulator has in the same way: the rotor-speed unit, mass, inertia, C_T, C_Q, and the file's
+    keys that are no physics (name, arm_length, description, source, rotor_input, command_map).
 
-    ``keys``: item -> (simulator key, its value) for mass, inertia, thrust_coeff, torque_coeff."""
+    ``keys``: item -> (simulator key, its value, its formula[, the note]) for name, mass, inertia, thrust_coeff,
+    torque_coeff; the note defaults to the unit's conversion."""
     u = vehicle.rotor_speed_unit
     f = pp.unit
+    raw = vehicle.raw
     conv = "1" if u == "rad_s" else "2π/60 rad/s per rpm"
-    extra = []
+    notes = {
+        "name": "the files' names come from it (characters that are not a letter, digit or _ become _)",
+        "mass": "kg; mass_error added" if has(vehicle, "mass_error") else "kg",
+        "inertia": "principal axes = body axes; inertia_error added" if has(vehicle, "inertia_error")
+        else "principal axes = body axes",
+        "thrust_coeff": f"C_T per {u}² → per (rad/s)²: ÷ f²",
+        "torque_coeff": f"C_Q per {u}² → per (rad/s)²: ÷ f²",
+    }
+    qr_values = {
+        "name": vehicle.name, "mass": g(vehicle.mass) + " kg",
+        "inertia": "[" + ", ".join(g(x) for x in vehicle.inertia) + "] kg m²",
+        "thrust_coeff": g(vehicle.thrust_coeff) + f" N/{u}²", "torque_coeff": g(vehicle.torque_coeff) + f" N m/{u}²",
+    }
+    out = [Row("rotor_speed_unit", u, "-", f"{g(f)} rad/s per {u}", EXACT, f"ω [rad/s] = f u [{u}] ({conv})",
+               formula="f")]
+    for item in ("name", "mass", "inertia", "thrust_coeff", "torque_coeff"):
+        key, value, formula, *note = keys[item]
+        out.append(Row(item, qr_values[item], key, value, EXACT, note[0] if note else notes[item], formula=formula))
+    if "arm_length" in raw:
+        out.append(Row("arm_length", g(raw["arm_length"]) + " m", "-", "-", EXACT,
+                       "in the rotor positions (layout rows): " + ("it places the rotors of the named layout"
+                                                                   if isinstance(raw["layout"], str) else
+                                                                   "not used where the layout lists them")))
+    for key in ("description", "source"):
+        if key in raw:
+            out.append(Row(key, "(text)", "-", "-", EXACT, "text, not physics: nothing to map"))
+    from ..vehicle import KNOWN
+
+    for key in sorted(set(map(str, raw)) - KNOWN):
+        out.append(Row(key, "(unknown key)", "-", "-", IMPOSSIBLE, "not a key qr knows: qr ignores it (warned at "
+                       "load), so the export carries nothing of it; check its spelling"))
     if vehicle.command_map is not None:
-        extra.append(Row("command_map", "a + b c + k c² N", "-", "-", IMPOSSIBLE,
-                         "the simulators take rotor speeds: give them qr's equivalent speeds u = sqrt(F / C_T) "
-                         "(qr ingest's), not the motor commands"))
-    return extra + [
-        Row("rotor_speed_unit", u, "-", "rad/s", EXACT, f"ω [rad/s] = {g(f)} u [{u}] ({conv})"),
-        Row("mass", g(vehicle.mass) + " kg", *keys["mass"], EXACT,
-            "kg; mass_error added" if "mass_error" in present(vehicle) else "kg"),
-        Row("inertia", "[" + ", ".join(g(x) for x in vehicle.inertia) + "] kg m²", *keys["inertia"], EXACT,
-            "principal axes = body axes; inertia_error added" if "inertia_error" in present(vehicle)
-            else "principal axes = body axes"),
-        Row("thrust_coeff", g(vehicle.thrust_coeff) + f" N/{u}²", *keys["thrust_coeff"], EXACT,
-            f"C_T / {g(f)}² (N per (rad/s)²)"),
-        Row("torque_coeff", g(vehicle.torque_coeff) + f" N m/{u}²", *keys["torque_coeff"], EXACT,
-            f"C_Q / {g(f)}² (N m per (rad/s)²)"),
-    ]
+        out.append(Row("rotor_input, command_map", "command: a + b c + k c² N", "-", "-", IMPOSSIBLE,
+                       "the simulators take rotor speeds: give them qr's equivalent speeds u = sqrt(F / C_T) "
+                       "(qr ingest's), not the motor commands"))
+    else:
+        out.append(Row("rotor_input" + (", command_map" if "command_map" in raw else ""), vehicle.rotor_input, "-",
+                       "rotor speeds", EXACT, "the simulators take rotor speeds, as the log's u1..u4"
+                       + ("; command_map is ignored (rotor_input is speed), as qr ignores it" if "command_map" in raw
+                          else "")))
+    return out
+
+
+def ground_row(vehicle, key: str = "-", value: str = "-") -> Row:
+    """``ground_z``: the floor's height in the log's world frame, which only the ground effect uses."""
+    z = g(vehicle.ground_z) + " m"
+    if key != "-":
+        return Row("ground_z", z, key, value, EXACT, "the floor's height in the log's world frame: the ground "
+                   "effect's reference (no other term uses it)", formula="ground_z")
+    if has(vehicle, "ground_effect"):
+        return Row("ground_z", z, "-", "-", IMPOSSIBLE, "the ground effect's reference height, left out with it "
+                   "(ground_effect row)")
+    return Row("ground_z", z, "-", "-", EXACT, "the floor's height in the log's world frame, used by no term of this "
+               "vehicle (no ground_effect): nothing to map; put the simulator's floor there to match the log")
+
+
+HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")  # the terms that act at the hubs, hub_z above the CG
+
+
+def hub_row(vehicle, key: str, kept: tuple[str, ...] = ()) -> Row:
+    """``hub_z`` for a simulator whose rotors sit in the CG's plane (``key``'s z is 0): the thrusts' moment about
+    the CG does not depend on the height, only the terms at the hubs do (``kept``: those the simulator carries)."""
+    z = g(vehicle.hub_z) + " m"
+    named = [n for n in HUB_EFFECTS if has(vehicle, n)]
+    if not named or vehicle.hub_z == 0:
+        note = ("the rotors sit in the CG's plane" + (", as the hubs do" if named else "") + ": the thrusts' moment "
+                "about the CG does not depend on their height" + ("" if named else "; no term of this vehicle acts "
+                                                                     "at the hubs (no " + " or ".join(HUB_EFFECTS) + ")"))
+        return Row("hub_z", z, key, "0 m", EXACT, note, formula="0")
+    kept = [n for n in named if n in kept]
+    lost = [n for n in named if n not in kept]
+    parts = ([f"{', '.join(kept)}: the roll/pitch part of the moment is left out"] if kept else []) \
+        + ([f"{', '.join(lost)} left out (their rows)"] if lost else [])
+    note = "the rotors sit in the CG's plane, not hub_z above it: " + "; ".join(parts)
+    return Row("hub_z", z, key, "0 m", APPROXIMATE if kept else IMPOSSIBLE, note, formula="0")
+

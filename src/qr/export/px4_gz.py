@@ -22,7 +22,6 @@ moment as ``CT p × a - CT KM a``: ``CA_ROTOR<i>_KM = +momentConstant`` for a cc
 
 from __future__ import annotations
 
-from dataclasses import replace
 from xml.sax.saxutils import escape
 
 import numpy as np
@@ -152,57 +151,98 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     m_b, c_b, _ = base_link(pp)
     m_r, _ = rotor_link_inertia(pp)
     plug = plugin_values(pp)
+    n = len(pp.yaw_signs)
+    frac = g(ROTOR_MASS_FRACTION)
+    mass = mp.fx_mass(vehicle) if not mp.has(vehicle, "mass_error") else f"({mp.fx_mass(vehicle)})"
+    rx, ry = mp.fx_cg(vehicle)
+    # momentConstant = k_yaw / k_i: C_Q / C_T, the gains and the imbalance of rotor i (f² cancels)
+    k_i = mp.fx_k_thrust(vehicle).removesuffix(" / f²")
+    moment = f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / ({k_i})" if k_i != "C_T" else \
+        f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / C_T"
     out = mp.common_rows(vehicle, pp, {
-        "mass": ("base_link + rotor_i inertial/mass", f"{g(m_b)} + 4 × {g(m_r)} kg"),
-        "inertia": ("base_link inertial/inertia (+ rotor links)", "(composed, see note)"),
-        "thrust_coeff": ("motorConstant", ", ".join(p["motorConstant"] for p in plug) + " N/(rad/s)²"),
-        "torque_coeff": ("momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug) + " m"),
+        "name": ("model name (model.config, model.sdf), folder", file_stem(vehicle), ""),
+        "mass": ("base_link, rotor_<i> inertial/mass", f"{g(m_b)} (base_link), {g(m_r)} (each rotor link) kg",
+                 f"{mass} · (1 − n · {frac}), {mass} · {frac}",
+                 f"kg: rotor links {100 * ROTOR_MASS_FRACTION:g} % of the mass each (Gazebo needs a mass on every "
+                 "link), base_link the rest" + ("; mass_error added" if mp.has(vehicle, "mass_error") else "")),
+        "inertia": ("base_link inertial/inertia (+ rotor links)", "(composed, see note)", "",
+                    "base_link's tensor = J - rotor links' (own + parallel-axis) - base's own shift to the CG: the "
+                    "composite has the vehicle's principal inertia about the CG"
+                    + ("; inertia_error added" if mp.has(vehicle, "inertia_error") else "")),
+        "thrust_coeff": ("motorConstant", ", ".join(p["motorConstant"] for p in plug) + " N/(rad/s)²",
+                         mp.fx_k_thrust(vehicle), f"C_T per {vehicle.rotor_speed_unit}² → per (rad/s)²: ÷ f²"),
+        "torque_coeff": ("momentConstant", ", ".join(p["momentConstant"] for p in plug) + " m", moment,
+                         "gz's drag torque is momentConstant × thrust: C_Q / C_T, a length (the f² cancels)"),
     })
-    out[2] = replace(out[2], note=f"rotor links {100 * ROTOR_MASS_FRACTION:g} % of the mass each; base_link "
-                 "the rest, its CoM and inertia chosen so that the links together have the vehicle's CG and inertia")
-    out[3] = replace(out[3], note="base_link's tensor = J - rotor links' (own + parallel-axis) - base's own shift "
-                 "to the CG: the composite has the vehicle's principal inertia about the CG")
     out += [
         Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "turningDirection",
             ", ".join(p["turningDirection"] for p in plug), EXACT,
             "gz drag torque = -turningDirection (ccw +1) momentConstant thrust: yaw_sign -1 ↔ ccw"),
-        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in pp.rotor_xy), "rotor_<i> pose; "
-            "CA_ROTOR<i>_PX/PY", ", ".join(f"({g(x - pp.cg[0])}, {g(-(y - pp.cg[1]))})" for x, y in pp.rotor_xy),
-            EXACT, "links at (x, y, 0) in base_link; PX4 in FRD relative to the CG: PX = x - rx, PY = -(y - ry)"),
+        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in pp.rotor_xy), "rotor_<i> pose",
+            ", ".join(f"({g(x)}, {g(y)}, 0)" for x, y in pp.rotor_xy), EXACT, "links at (x, y, 0) in base_link",
+            formula="(x_i, y_i, 0)"),
+        Row("layout (rotor x, y) for PX4", "(relative to the CG)", "CA_ROTOR<i>_PX, CA_ROTOR<i>_PY",
+            ", ".join(f"({g(x - pp.cg[0])}, {g(-(y - pp.cg[1]))})" for x, y in pp.rotor_xy), EXACT,
+            "PX4 in FRD relative to the CG: PX = x - rx, PY = -(y - ry)",
+            formula=f"({mp.fx_minus('x_i', rx)}, −({mp.fx_minus('y_i', ry)}))"),
         Row("torque_coeff sign", "yaw_sign", "CA_ROTOR<i>_KM", ", ".join(g(-s * pp.k_yaw / k) for k, s in
             zip(pp.k_thrust, pp.yaw_signs)), EXACT, "PX4's moment CT p × a - CT KM a, a = (0, 0, -1) FRD: "
-            "KM = -yaw_sign C_Q / C_T (positive for ccw, as PX4 documents)"),
-        Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "timeConstantUp / Down",
-            f"{g(pp.tau_m)} / {g(pp.tau_m)} s", EXACT, "qr's lag is the same up and down"),
+            "KM = -yaw_sign C_Q / C_T (positive for ccw, as PX4 documents)", formula=f"−s_i · {moment}"),
+        Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "timeConstantUp, timeConstantDown",
+            f"{g(pp.tau_m)}, {g(pp.tau_m)} s", EXACT, "qr's lag is the same up and down", formula="τ_m, τ_m"),
         Row("rotor_speed_max", f"{g(vehicle.rotor_speed_max)} {vehicle.rotor_speed_unit}",
             "maxRotVelocity; SIM_GZ_EC_MAX<i>", f"{g(pp.speed_max)}; {int(round(pp.speed_max))} rad/s", EXACT,
-            "× f (PX4's parameter is an integer: rounded)"),
+            "× f (PX4's parameter is an integer: rounded)", formula="f · u_max, round(f · u_max)"),
         Row("rotor_speed_min", f"{g(vehicle.rotor_speed_min)} {vehicle.rotor_speed_unit}", "SIM_GZ_EC_MIN<i>",
-            f"{int(round(pp.speed_min))} rad/s", EXACT, "× f, rounded (PX4 maps its output range onto [MIN, MAX])"),
+            f"{int(round(pp.speed_min))} rad/s", EXACT, "× f, rounded (PX4 maps its output range onto [MIN, MAX])",
+            formula="round(f · u_min)"),
         Row("(none)", "-", "rollingMomentCoefficient", "0", EXACT,
-            "gz's rolling moment is a torque about v⊥; qr has no such term (flapping acts about v × e_z)"),
+            "gz's rolling moment is a torque about v⊥; qr has no such term (flapping acts about v × e_z)", formula="0"),
+        mp.ground_row(vehicle),
+        mp.hub_row(vehicle, "rotor_<i> pose (z)", kept=("rotor_drag_moment",) if pp.P[pl.P_RDRAG] else ()),
     ]
     size = mp.sizes(pp)
     P = pp.P
+    xs = " + ".join(f"x_{i}" for i in range(1, n + 1))
+    ys = " + ".join(f"y_{i}" for i in range(1, n + 1))
     for name in mp.present(vehicle):
         val = mp.effect_value(vehicle, name)
         if name in ("mass_error", "inertia_error"):
-            out.append(Row(name, val, "inertial", "(added)", EXACT, "added to the vehicle's value"))
+            out.append(Row(name, val, "inertial", "(added)", EXACT, "added to the vehicle's value (mass, inertia rows)"))
         elif name in ("thrust_gain", "motor_imbalance"):
             out.append(Row(name, val, "motorConstant (per rotor); momentConstant, CA_ROTOR<i>_KM",
                            ", ".join(p["motorConstant"] for p in plug), EXACT,
                            "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q / (gain (1 + d_i) C_T) "
-                           "keeps the yaw torque qr's"))
+                           "keeps the yaw torque qr's", formula=mp.fx_k_thrust(vehicle)))
         elif name == "yaw_torque_gain":
-            out.append(Row(name, val, "momentConstant; CA_ROTOR<i>_KM", g(pp.k_yaw / pp.k_thrust[0]), EXACT,
-                           "gain C_Q / C_T"))
+            out.append(Row(name, val, "momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug),
+                           EXACT, "gain C_Q / C_T", formula=moment))
         elif name == "cg_offset":
-            out.append(Row(name, val, "base_link inertial/pose; CA_ROTOR<i>_PX/PY", f"{g(c_b[0])} {g(c_b[1])} 0",
-                           EXACT, "the composite CG at (rx, ry): the thrusts' moment Γ - c × T = [-ry T, rx T, 0]"))
+            out.append(Row(name, val, "base_link inertial/pose; CA_ROTOR<i>_PX/PY", f"{g(c_b[0])}, {g(c_b[1])}, 0",
+                           EXACT, "base_link's CoM such that the composite CG is at (rx, ry): the thrusts' moment "
+                           "Γ - c × T = [-ry T, rx T, 0]; PX4's rotor positions relative to it",
+                           formula=f"(cg_offset.rx − {frac} · ({xs})) / (1 − n · {frac}), "
+                                   f"(cg_offset.ry − {frac} · ({ys})) / (1 − n · {frac}), 0"))
         elif name == "rotor_drag":
             out.append(Row(name, val, "rotorDragCoefficient", plug[0]["rotorDragCoefficient"] + " N s/m per rad/s",
                            APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
-                           "velocity (v + ω × r_i): exact at equal rotor speeds and zero body rate"))
+                           "velocity (v + ω × r_i): its force is qr's at equal rotor speeds and zero body rate"
+                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)"
+                              if P[pl.P_RDM] == P[pl.P_RDRAG] else
+                              "; its moment about the CG (a yaw-rate damping) is gz's addition (rotor_drag_moment, not named)"),
+                           formula="rotor_drag.k / f"))
+        elif name == "rotor_drag_moment":
+            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            flat = pp.hub_z == 0
+            out.append(Row(name, val, "rotorDragCoefficient; rotor_<i> pose", plug[0]["rotorDragCoefficient"]
+                           + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           ("gz's rotor drag acts at each rotor link with the link's velocity: its moment about the CG is "
+                            "qr's term with rotor_drag's k" + ("" if flat else
+                                                               f"; the links sit in the CG's plane, not hub_z = {g(pp.hub_z)} m "
+                                                               "above it: the roll/pitch part is left out")) if same else
+                           f"gz's rotor drag is a force at the links, its moment comes with it: rotorDragCoefficient "
+                           f"carries rotor_drag's k, {mp.untied_moment(P)} "
+                           f"({size[name]})", formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
         elif name == "blade_flapping":
             out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"torque about v × e_z ({size[name]}); gz's "
                            "rollingMomentCoefficient acts about v⊥ itself, a different axis: left at 0, flapping "
@@ -214,21 +254,36 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"no element of the motor model or the link "
                            f"({size[name]}): left out"))
     if P[pl.P_REM_ON]:
-        out.append(Row("torque_remainder", "W (3 x 11)", "-", "-", IMPOSSIBLE,
-                       f"a learned map ({size['torque_remainder']}): left out"))
+        out.append(Row("torque_remainder", "W (3 × 11)", "-", "-", IMPOSSIBLE,
+                       f"a learned map ({size['torque_remainder']}): no element of the Gazebo model holds it: left "
+                       "out, the model flies without it"))
+    if vehicle.residual is not None:
+        out.append(Row("residual", mp.residual_item(vehicle), "-", "-", IMPOSSIBLE,
+                       "a learned body wrench: no element of the Gazebo model or of PX4 holds a network: left out, "
+                       f"the model flies the physical part only. Its size: {mp.residual_size(vehicle, pp)}"))
     return out
 
 
 def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
     from ..atomic import write_text
 
-    from .rotorpy import file_stem
-
     model = file_stem(vehicle)
     (tmp / model).mkdir()
     write_text(tmp / model / "model.sdf", model_sdf(vehicle, pp, path, version, model))
     write_text(tmp / model / "model.config", model_config(vehicle, model, version))
     write_text(tmp / f"{model}.params", params_text(vehicle, pp, path, version))
+    return [f"{model}/", f"{model}.params"]
+
+
+def file_stem(vehicle) -> str:
+    from .rotorpy import file_stem as stem
+
+    return stem(vehicle)
+
+
+def outputs(vehicle) -> list[str]:
+    """The files :func:`write` writes (the output folder is checked against them first)."""
+    model = file_stem(vehicle)
     return [f"{model}/", f"{model}.params"]
 
 

@@ -16,19 +16,23 @@ derived term by term (docs/export.md):
 
 - ``k_eta = C_T / f²``, ``k_m = C_Q / f²`` with ``f`` rad/s per vehicle unit; ``rotor_directions_i =
   yaw_sign_i`` (RotorPy multiplies ``k_m ω²`` by it as the body-z moment: the sign of the reaction
-  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, 0)``: the CG offset is exact there
+  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, hub_z)``: the CG offset is exact there
   (the thrusts' moment about the CG is ``Γ - c × T``, the catalog's ``[-r_y T, r_x T, 0]``).
-- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (the force is exact; RotorPy applies it at the hubs,
-  adding a yaw moment ``-k_d Σ ω_i (x_i v_iy - y_i v_ix)`` that qr lacks: zero at equal rotor speeds and
-  no yaw rate).
+- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (``rotor_drag_matrix = diag(k_d, k_d, 0)``; RotorPy
+  applies it at the hubs with their airspeed, so its force has ``-k_d Σ ω_i (ω × r_i)_xy`` more: zero at
+  equal rotor speeds with no roll/pitch rate or the hubs in the CG's plane), and its moment about the CG,
+  ``Σ r_i × H_i``, is qr's ``rotor_drag_moment`` with the same ``k`` exactly (``rotor_pos`` at ``hub_z``):
+  named together, the one ``k_d`` carries both; rotor_drag alone, the moment is RotorPy's addition.
+- translational_lift ``k (w_ix² + w_iy²)`` per rotor → ``k_h = k``: exact (the same hub airspeed).
 - blade_flapping ``k [v_y, -v_x, 0]`` → ``k_flap = -k / (4 ω_hover)``: RotorPy's flapping grows with the
   rotor speed, qr's does not; exact at a rotor-speed sum of ``4 ω_hover`` (relative error
   ``|Σω / (4 ω_hover) - 1|`` otherwise).  The minus sign: RotorPy's moment is ``-k_flap Σω [v_y, -v_x, 0]``.
 - quadratic_drag ``-c_j |v_j| v_j`` → ``c_Dj = c_j``: exact for airspeed along one body axis; RotorPy's
   ``c_Dj |v| v_j`` is larger by ``|v| / |v_j|`` otherwise.
 - the rest (linear drag, per-rotor thrust differences, biases, a constant world force, ground effect,
-  the learned torque remainder) has no RotorPy key: the module's ``QrMultirotor`` adds it to the state
-  derivative.  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
+  a hybrid's learned torque remainder and learned wrench) has no RotorPy key: the module's
+  ``QrMultirotor`` adds it to the state derivative (the network evaluated in NumPy from its weights,
+  ``<name>_residual.npz`` beside the module: no torch, no qr).  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
   exact terms, so it integrates qr's plant; ``Multirotor(quad_params)`` alone gives RotorPy's own physics
   with the mapped coefficients.
 """
@@ -38,7 +42,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..sim import plant as pl
-from . import mapping as mp
+from . import learned, mapping as mp
 from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
 
 # RotorPy's low-level gains (for its cmd_ctbr / cmd_vel / cmd_acc / cmd_ctatt abstractions): its own
@@ -63,7 +67,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rotor_radius": display_radius(pp),
         "c_Dx": P[pl.P_QUAD], "c_Dy": P[pl.P_QUAD + 1], "c_Dz": P[pl.P_QUAD + 2],
         "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
-        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": 0.0,
+        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[pl.P_TLIFT],
         "k_flap": -P[pl.P_FLAP] / (4 * pp.hover),
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
         "motor_noise_std": 0.0, **DEFAULT_GAINS,
@@ -78,7 +82,11 @@ def display_radius(pp: mp.Plant) -> float:
     return float(d[np.triu_indices(len(r), 1)].min() / 2)
 
 
-def qr_terms(pp: mp.Plant) -> dict:
+def residual_file(vehicle) -> str:
+    return learned.residual_file(file_stem(vehicle))
+
+
+def qr_terms(vehicle, pp: mp.Plant) -> dict:
     """What ``QrMultirotor`` adds: SI units, rotor speeds in rad/s, body frame unless named world."""
     P = pp.P
     k_eta = float(np.mean(pp.k_thrust))
@@ -89,6 +97,8 @@ def qr_terms(pp: mp.Plant) -> dict:
         "quadratic_drag": list(P[pl.P_QUAD:pl.P_QUAD + 3]),  # N s²/m²
         "rotor_drag": P[pl.P_RDRAG] / pp.unit,  # N s/m per rad/s
         "blade_flapping": P[pl.P_FLAP],  # N m s/m
+        "rotor_drag_moment": P[pl.P_RDM] / pp.unit,  # N s/m per rad/s, at the hubs
+        "translational_lift": P[pl.P_TLIFT],  # N s²/m² per rotor, at the hubs
         "wind_force": list(P[pl.P_WIND:pl.P_WIND + 3]),  # N, world
         "body_force_bias": list(P[pl.P_BBIAS:pl.P_BBIAS + 3]),  # N
         "torque_bias": list(P[pl.P_TBIAS:pl.P_TBIAS + 3]),  # N m
@@ -97,32 +107,26 @@ def qr_terms(pp: mp.Plant) -> dict:
         "marker_offset": list(P[pl.P_MARKER:pl.P_MARKER + 3]),  # m, tracked point from the CG, body
         "remainder_hover_speed": P[pl.P_UHOVER] * pp.unit,  # rad/s
         "torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
+        "residual": learned.residual_spec(vehicle, pp, file_stem(vehicle)),  # the learned body wrench (qr.residual)
     }
 
 
 def _literal(x) -> str:
-    if x is None:
-        return "None"
-    if isinstance(x, dict):
-        return "{" + ", ".join(f"'{k}': {_literal(v)}" for k, v in x.items()) + "}"
-    if isinstance(x, (list, tuple)):
-        if x and isinstance(x[0], (list, tuple)):
-            return "[" + ", ".join(_literal(v) for v in x) + "]"
-        return f"np.array({_vec(x)}, float)"
-    if isinstance(x, (int, np.integer)):
-        return str(int(x))
-    return g(x)
+    return learned.literal(x, g)
 
 
 MODULE = '''"""{name} for RotorPy 3: written by `qr export {path} --to rotorpy` (qr {version}).
 
     from {module} import quad_params, QrMultirotor
-    vehicle = QrMultirotor()                    # qr's extended model, exactly (see mapping.md)
+    vehicle = QrMultirotor()                    # qr's model, exactly (see mapping.md)
     vehicle = Multirotor(quad_params)           # RotorPy's own physics with the mapped coefficients
 
 Body frame x forward, y left, z up; rotor speeds in rad/s; SI units.  mapping.md beside this file
-states every conversion and approximation.
+states every conversion and approximation.  A learned wrench (QR_TERMS['residual']) is evaluated here
+in NumPy from its weights beside this file (no torch, no qr needed).
 """
+import os
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 from rotorpy.vehicles.multirotor import Multirotor
@@ -137,7 +141,11 @@ QR_TERMS = {{
 }}
 
 MIN_GROUND_HEIGHT = {min_h}  # m, as qr's plant: keeps k T / h^2 finite in a crash
+RESIDUAL = QR_TERMS["residual"]
+REMAINDER = None if QR_TERMS["torque_remainder"] is None else np.asarray(QR_TERMS["torque_remainder"], float)
+REMAINDER_HOVER_SPEED = QR_TERMS["remainder_hover_speed"]
 
+{network}
 
 def hover_state(position=(0.0, 0.0, 1.0)):
     """A state at rest, level, every rotor at the hover speed ({hover} rad/s)."""
@@ -152,12 +160,14 @@ def tracked_point(state):
 
 
 class QrMultirotor(Multirotor):
-    """RotorPy's Multirotor plus the terms of qr's extended model it has no key for.
+    """RotorPy's Multirotor plus the terms of qr's model it has no key for (the learned ones included).
 
     exact_aero=True (default): RotorPy's own aerodynamics are switched off (aero=False) and qr's exact
-    drag and flapping terms are added instead, so the vehicle integrates qr's plant.
-    exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_flap, c_D: approximate where
-    mapping.md says), plus the terms it has no key for."""
+    drag, flapping, rotor-drag moment and translational lift terms are added instead, so the vehicle
+    integrates qr's plant.
+    exact_aero=False: RotorPy's aerodynamics with the mapped keys (k_d, k_h, k_flap, c_D: approximate where
+    mapping.md says), plus the terms it has no key for (a learned wrench then adds to RotorPy's
+    aerodynamics, not to the qr model it was trained on)."""
 
     def __init__(self, params=None, initial_state=None, exact_aero=True, **kwargs):
         self.exact_aero = exact_aero
@@ -165,9 +175,7 @@ class QrMultirotor(Multirotor):
             kwargs["aero"] = False
         super().__init__(quad_params if params is None else params,
                          hover_state() if initial_state is None else initial_state, **kwargs)
-        t = QR_TERMS
-        self._scale = np.asarray(t["thrust_scale"], float)
-        self._W = None if t["torque_remainder"] is None else np.asarray(t["torque_remainder"], float)
+        self._scale = np.asarray(QR_TERMS["thrust_scale"], float)
 
     def qr_wrench(self, s):
         """(world force, body force, body moment) qr's model adds to RotorPy's at the packed state s."""
@@ -183,14 +191,21 @@ class QrMultirotor(Multirotor):
             F -= t["linear_drag"] * vb + t["quadratic_drag"] * np.abs(vb) * vb
             F[:2] -= t["rotor_drag"] * speeds.sum() * vb[:2]
             M += t["blade_flapping"] * np.array([vb[1], -vb[0], 0.0])
+            if t["rotor_drag_moment"] or t["translational_lift"]:  # at each hub, with its airspeed v_b + w x r_i
+                r = self.rotor_geometry
+                wh = vb + np.cross(w, r)
+                lift = t["translational_lift"] * (wh[:, 0]**2 + wh[:, 1]**2)
+                H = -t["rotor_drag_moment"] * speeds[:, None] * wh * np.array([1.0, 1.0, 0.0])
+                M += np.cross(r, H + np.outer(lift, [0.0, 0.0, 1.0])).sum(axis=0)
+                F[2] += lift.sum()
         F += t["body_force_bias"]
         M += t["torque_bias"]
         if t["ground_effect"]:
             h = max(s[2] + R[2] @ t["marker_offset"] - t["ground_z"], MIN_GROUND_HEIGHT)
             F[2] += t["ground_effect"] * (self._scale * thrust).sum() / h**2
-        if self._W is not None:
-            phi = np.concatenate([vb, w, (speeds / t["remainder_hover_speed"])**2 - 1.0, [1.0]])
-            M += self._W @ phi
+        f_learned, m_learned = learned_wrench(vb, w, -R[2], speeds)  # g_b = R^T [0, 0, -1]
+        F += f_learned
+        M += m_learned
         return np.asarray(t["wind_force"], float), F, M
 
     def _s_dot_fn(self, t, s, cmd_rotor_speeds):
@@ -212,114 +227,170 @@ def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> 
             lines.append(f"    'rotor_pos': {{\n{inner},\n    }},")
         else:
             lines.append(f"    '{k}': {_literal(v)},")
-    terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(pp).items())
+    terms = "\n".join(f"    '{k}': {_literal(v)}," for k, v in qr_terms(vehicle, pp).items())
     return MODULE.format(name=vehicle.name, path=path, version=version, module=module, params="\n".join(lines),
-                         terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs))
+                         terms=terms, min_h=g(pl.MIN_GROUND_HEIGHT), hover=g(pp.hover), n=len(pp.yaw_signs),
+                         network=learned.LEARNED_SOURCE)
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
-    """The mapping of every parameter and named effect onto RotorPy."""
+    """The mapping of every key, parameter and named effect of the vehicle file onto RotorPy."""
     qp = quad_params(pp)
     size = mp.sizes(pp)
     u = vehicle.rotor_speed_unit
+    rx, ry = mp.fx_cg(vehicle)
+    P = pp.P
+    lift = mp.has(vehicle, "translational_lift")  # named: its row maps k_h
     out = mp.common_rows(vehicle, pp, {
-        "mass": ("mass", g(qp["mass"]) + " kg"),
-        "inertia": ("Ixx, Iyy, Izz (Ixy = Iyz = Ixz = 0)", ", ".join(g(qp[k]) for k in ("Ixx", "Iyy", "Izz"))),
-        "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²"),
-        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²"),
+        "name": (f"module {file_stem(vehicle)}_params", file_stem(vehicle), ""),
+        "mass": ("mass", g(qp["mass"]) + " kg", mp.fx_mass(vehicle)),
+        "inertia": ("Ixx, Iyy, Izz (Ixy = Iyz = Ixz = 0)", ", ".join(g(qp[k]) for k in ("Ixx", "Iyy", "Izz")),
+                    ", ".join(mp.fx_inertia(vehicle))),
+        "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²", mp.fx_k_thrust(vehicle, mean=True),
+                         "the rotors' mean thrust per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
+                                                                    if mp.has(vehicle, "motor_imbalance") else "")),
+        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle)),
     })
     out += [
-        Row("layout (rotor x, y)", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions), "rotor_pos",
-            ", ".join(f"({g(r[0])}, {g(r[1])}, 0)" for r in pp.rotor_pos), EXACT,
-            "m, relative to the CG (cg_offset subtracted); rotor plane through the CG"),
+        Row("layout (rotor x, y), hub_z", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions)
+            + f"; {g(pp.hub_z)} m", "rotor_pos", ", ".join(f"({g(r[0])}, {g(r[1])}, {g(r[2])})" for r in pp.rotor_pos),
+            EXACT, "m, relative to the CG (cg_offset subtracted); the hubs hub_z above it",
+            formula=f"({mp.fx_minus('x_i', rx)}, {mp.fx_minus('y_i', ry)}, hub_z)"),
         Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "rotor_directions",
             ", ".join(f"{s:+g}" for s in pp.yaw_signs), EXACT,
-            "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign"),
+            "RotorPy's moment is rotor_directions_i k_m ω_i² about body z: the reaction torque's sign, as yaw_sign",
+            formula="s_i"),
         Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "tau_m", g(qp["tau_m"]) + " s", EXACT,
-            "first-order lag in both"),
-        Row("rotor_speed_min / max", f"{g(vehicle.rotor_speed_min)} / {g(vehicle.rotor_speed_max)} {u}",
-            "rotor_speed_min / max", f"{g(qp['rotor_speed_min'])} / {g(qp['rotor_speed_max'])} rad/s", EXACT, "× f"),
-        Row("(none: no translational lift, no vertical rotor drag in qr)", "-", "k_h, k_z", "0, 0", EXACT,
-            "qr's catalog has neither term; RotorPy's defaults for other vehicles are not carried over"),
-        Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG"),
+            "first-order lag in both", formula="τ_m"),
+        Row("rotor_speed_min, rotor_speed_max", f"{g(vehicle.rotor_speed_min)}, {g(vehicle.rotor_speed_max)} {u}",
+            "rotor_speed_min, rotor_speed_max", f"{g(qp['rotor_speed_min'])}, {g(qp['rotor_speed_max'])} rad/s", EXACT,
+            "× f", formula="f · u_min, f · u_max"),
+        mp.ground_row(vehicle, "QR_TERMS['ground_z']", g(pp.P[pl.P_GZ]) + " m"),
+        Row("(none: no vertical rotor drag in qr" + ("" if lift else ", no translational_lift named") + ")",
+            "-", "k_z" + ("" if lift else ", k_h"), "0" + ("" if lift else ", 0"), EXACT,
+            "RotorPy's defaults for other vehicles are not carried over", formula="0" + ("" if lift else ", 0")),
+        Row("(none)", "-", "motor_noise_std, rI", "0, [0, 0, 0]", EXACT, "no noise; IMU at the CG",
+            formula="0, 0, 0, 0"),
         Row("(none: qr has no propeller size)", "-", "rotor_radius", g(qp["rotor_radius"]) + " m", EXACT,
             "drawing only in RotorPy: half the smallest distance between two rotor axes"),
         Row("(RotorPy's low-level gains)", "-", "k_w, k_v, kp_att, kd_att",
             ", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att")), EXACT,
-            "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)"),
+            "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)",
+            formula=", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att"))),
     ]
-    P = pp.P
-    have = mp.present(vehicle)
+    terms = qr_terms(vehicle, pp)
+    n = len(pp.yaw_signs)
 
     def val(name):
         return mp.effect_value(vehicle, name)
 
-    for name in have:
+    for name in mp.present(vehicle):
         if name in ("mass_error", "inertia_error"):
             out.append(Row(name, val(name), "mass" if name == "mass_error" else "Ixx, Iyy, Izz", "(added)", EXACT,
-                           "added to the vehicle's value"))
+                           "added to the vehicle's value (mass, inertia rows)"))
         elif name == "thrust_gain":
-            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²"))
+            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²",
+                           formula=mp.fx_k_thrust(vehicle, mean=True)))
         elif name == "yaw_torque_gain":
-            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²"))
+            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
+                           formula=mp.fx_k_yaw(vehicle)))
         elif name == "cg_offset":
             out.append(Row(name, val(name), "rotor_pos", "(shifted)", EXACT,
-                           "rotor_pos_i = (x_i - rx, y_i - ry, 0): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
+                           "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
         elif name == "motor_imbalance":
+            ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
             out.append(Row(name, val(name), "k_eta (mean) + QR_TERMS['thrust_scale']",
-                           _vec(qr_terms(pp)["thrust_scale"]), EXACT,
+                           _vec(terms["thrust_scale"]), EXACT,
                            "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
-                           "alone has their mean k_eta"))
+                           "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})"))
         elif name == "rotor_drag":
-            out.append(Row(name, val(name), "k_d", g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
-                           "k_d = k / f; the force -k_d Σω [v_x, v_y] is qr's; RotorPy applies it at the hubs with the hub "
-                           "airspeed v + ω × r_i, adding a yaw moment -k_d Σ ω_i (r_i × v_i)_z: exact at equal rotor speeds "
-                           "and zero yaw rate. QrMultirotor (exact_aero) applies qr's term exactly"))
+            both = P[pl.P_RDM] == P[pl.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
+            out.append(Row(name, val(name), "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",
+                           g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
+                           "k_d = k / f; RotorPy applies -k_d ω_i [w_x, w_y] at each hub with its airspeed w = v + ω × r_i: "
+                           "its force has -k_d Σ ω_i (ω × r_i)_xy more than qr's -k Σu [v_x, v_y] (zero at equal rotor "
+                           "speeds with no roll/pitch rate or the hubs in the CG's plane)"
+                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)" if both else
+                              "; its moment about the CG, a yaw-rate damping -k_d Σ ω_i (r_ix² + r_iy²) ω_z and more, is "
+                              "RotorPy's addition (qr's rotor_drag_moment, not named)")
+                           + ". QrMultirotor (exact_aero) applies qr's terms exactly", formula="rotor_drag.k / f"))
+        elif name == "rotor_drag_moment":
+            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            out.append(Row(name, val(name), "k_d (rotor_drag_matrix), rotor_pos", g(qp["k_d"]) + " N s/m per rad/s",
+                           EXACT if same else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           "k_d = k / f, the same as rotor_drag's: RotorPy's rotor drag at the hubs has the moment "
+                           "Σ r_i × (-k_d ω_i [w_ix, w_iy, 0]) about the CG, qr's term exactly" if same else
+                           f"RotorPy's rotor drag is a force at the hubs, its moment comes with it: k_d carries rotor_drag's "
+                           f"k ({g(qp['k_d'])} per rad/s), {mp.untied_moment(P)} "
+                           f"({size[name]}). QrMultirotor (exact_aero) applies qr's term exactly",
+                           formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
+        elif name == "translational_lift":
+            out.append(Row(name, val(name), "k_h", g(qp["k_h"]) + " N/(m/s)² per rotor", EXACT,
+                           "k_h = k: RotorPy's thrust k_eta ω_i² + k_h (w_ix² + w_iy²) with the hub airspeed w = v + ω × r_i, "
+                           "qr's term", formula="translational_lift.k"))
         elif name == "blade_flapping":
             out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
                            f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
                            "[v_iy, -v_ix, 0] grows with the rotor speeds, qr's k [v_y, -v_x, 0] does not: exact at "
                            "equal rotor speeds summing to 4 ω_hover (CG at the rotors' centre); relative error "
-                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly"))
+                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly",
+                           formula="−blade_flapping.k / (n · ω_h)"))
         elif name == "quadratic_drag":
             out.append(Row(name, val(name), "c_Dx, c_Dy, c_Dz", ", ".join(g(qp[k]) for k in ("c_Dx", "c_Dy", "c_Dz")),
                            APPROXIMATE, "c_Dj = c_j: RotorPy's -c_Dj |v| v_j equals qr's -c_j |v_j| v_j for airspeed "
                            "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
-                           "applies qr's term exactly"))
+                           "applies qr's term exactly", formula=", ".join(mp.fx_effect(vehicle, name, ("cx", "cy", "cz")))))
         elif name == "linear_drag":
             out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[pl.P_LIN:pl.P_LIN + 3]) + " N s/m",
                            EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
-                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})"))
+                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})",
+                           formula=", ".join(mp.fx_effect(vehicle, name, ("kx", "ky", "kz")))))
         elif name in ("wind_force", "body_force_bias", "torque_bias"):
-            key = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
+            unit = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
             off = {"wind_force": pl.P_WIND, "body_force_bias": pl.P_BBIAS, "torque_bias": pl.P_TBIAS}[name]
-            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + key, EXACT,
-                           f"no RotorPy key: QrMultirotor adds it ({size[name]})"))
+            params = {"wind_force": ("fx", "fy", "fz"), "body_force_bias": ("bx", "by", "bz"),
+                      "torque_bias": ("tx", "ty", "tz")}[name]
+            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + unit, EXACT,
+                           f"no RotorPy key: QrMultirotor adds it ({size[name]})",
+                           formula=", ".join(mp.fx_effect(vehicle, name, params))))
         elif name == "ground_effect":
-            out.append(Row(name, val(name), "QR_TERMS['ground_effect'], ['ground_z']",
-                           f"{g(P[pl.P_GE])} m², {g(P[pl.P_GZ])} m", EXACT,
-                           f"no RotorPy key: QrMultirotor adds k T / h² along body z ({size[name]})"))
+            out.append(Row(name, val(name), "QR_TERMS['ground_effect']", f"{g(P[pl.P_GE])} m²", EXACT,
+                           f"no RotorPy key: QrMultirotor adds k T / h² along body z, h above ground_z ({size[name]})",
+                           formula="ground_effect.k"))
         elif name == "marker_offset":
             out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[pl.P_MARKER:pl.P_MARKER + 3]) + " m",
                            EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
-                           f"point x + R r ({size[name]}), and the ground effect's height uses it"))
+                           f"point x + R r ({size[name]}), and the ground effect's height uses it",
+                           formula=", ".join(mp.fx_effect(vehicle, name, ("rx", "ry", "rz")))))
         elif name == "actuator_delay":
             out.append(Row(name, val(name), "-", "-", IMPOSSIBLE,
                            f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
                            "first-order motors, delaying cmd_motor_speeds by the same time is equivalent"))
     if P[pl.P_REM_ON]:
-        out.append(Row("torque_remainder", "W (3 x 11)", "QR_TERMS['torque_remainder']", "(3 x 11)", EXACT,
+        out.append(Row("torque_remainder", "W (3 × 11)", "QR_TERMS['torque_remainder']", "the file's W", EXACT,
                        f"a learned map, no RotorPy key: QrMultirotor adds W φ ({size['torque_remainder']})"))
+    if vehicle.residual is not None:
+        out.append(Row("residual", mp.residual_item(vehicle), f"QR_TERMS['residual'], {residual_file(vehicle)}",
+                       "the file's network", EXACT,
+                       "no RotorPy key: QrMultirotor adds the network's body force and torque at the CG at every "
+                       "evaluation of the dynamics (residual_wrench: NumPy, rotor speeds ÷ f into qr's scaling; "
+                       f"weights copied beside the module); its size: {mp.residual_size(vehicle, pp)}"))
     return out
 
 
 def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
-    """Write ``<name>_params.py`` into ``tmp``; return the names written."""
+    """Write ``<name>_params.py`` (and the learned wrench's weights) into ``tmp``; return the names written."""
     from ..atomic import write_text
 
     module = file_stem(vehicle) + "_params"
     write_text(tmp / f"{module}.py", module_text(vehicle, pp, path, version, module))
-    return [f"{module}.py"]
+    return [f"{module}.py", *learned.write_weights(tmp, vehicle, file_stem(vehicle))]
+
+
+def outputs(vehicle) -> list[str]:
+    """The files :func:`write` writes, before writing them (the output folder is checked against them)."""
+    stem = file_stem(vehicle)
+    return [f"{stem}_params.py", *([residual_file(vehicle)] if vehicle.residual is not None else [])]
 
 
 def file_stem(vehicle) -> str:
@@ -331,7 +402,8 @@ def file_stem(vehicle) -> str:
 
 
 INTRO = ["`QrMultirotor` (the module's subclass of RotorPy's `Multirotor`, `exact_aero=True` by default) switches "
-         "RotorPy's own aerodynamics off and adds qr's terms exactly: it integrates qr's plant, and every row "
+         "RotorPy's own aerodynamics off and adds qr's terms exactly, a learned torque remainder and a learned wrench "
+         "(`residual_wrench`, the network in NumPy) included: it integrates qr's plant, and every row "
          "below holds for it except those marked impossible. `Multirotor(quad_params)` alone has RotorPy's own "
          "physics with the mapped keys: the rows marked approximate hold under their condition, the terms under "
          "`QR_TERMS` are missing. f = rad/s per rotor-speed unit."]

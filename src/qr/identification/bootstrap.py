@@ -12,7 +12,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from .normal_equations import BlockStats, solve_many
+from .normal_equations import BlockStats, free_columns, solve_many, tie_map
 
 
 @lru_cache(maxsize=64)
@@ -39,6 +39,11 @@ def bootstrap(stats: BlockStats, effects: list[str], n: int, seed: int, counts: 
     Gs = stats.G[:, idx[:, None], idx[None, :]]
     hs = stats.h[:, idx]
     Gb, hb = np.tensordot(counts, Gs, 1), counts @ hs
-    return solve_many(Gb, hb, *stats.bounds(idx))
+    T = tie_map(effects)
+    if T is None:
+        return solve_many(Gb, hb, *stats.bounds(idx))
+    # tied effects (TIED) share their parameters: solved for the free ones
+    Gt = np.einsum("ji,njk,kl->nil", T, Gb, T)
+    return solve_many(Gt, hb @ T, *stats.bounds(idx[free_columns(T)])) @ T.T
 
 

@@ -16,7 +16,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..effects import CATALOG, Signals
+from ..effects import TIED, Signals, lookup
 from .box_qp import box_qp, box_qp_many, scaled_solve_many
 
 
@@ -33,7 +33,7 @@ class Columns:
     def of(cls, effects, force_only=()):
         slices, j = {}, 0
         for e in effects:
-            k = len(CATALOG[e].params)
+            k = len(lookup(e).params)
             slices[e] = slice(j, j + k)
             j += k
         return cls(list(effects), slices, frozenset(force_only) & set(effects))
@@ -47,13 +47,41 @@ class Columns:
             if effects else np.zeros(0, dtype=int)
 
 
+def tie_map(effects) -> np.ndarray | None:
+    """``T`` (p, q): the q free parameters of ``effects`` onto their p columns (in ``Columns.of`` order) where
+    effects of ``TIED`` named together share one parameter vector (θ = T φ); None where none are tied."""
+    effects = list(effects)
+    pairs = [g for g in TIED if set(g) <= set(effects)]
+    if not pairs:
+        return None
+    cols = Columns.of(effects)
+    follows = {}  # column -> the column whose parameter it shares
+    for group in pairs:
+        lead = cols.slices[group[0]]
+        for other in group[1:]:
+            for j, i in zip(range(cols.slices[other].start, cols.slices[other].stop), range(lead.start, lead.stop)):
+                follows[j] = i
+    free = [j for j in range(cols.size) if j not in follows]
+    T = np.zeros((cols.size, len(free)))
+    for c, j in enumerate(free):
+        T[j, c] = 1.0
+    for j, i in follows.items():
+        T[j, free.index(i)] = 1.0
+    return T
+
+
+def free_columns(T: np.ndarray) -> np.ndarray:
+    """The columns that carry each free parameter of a :func:`tie_map` (its first)."""
+    return np.argmax(T, axis=0)
+
+
 def design(s: Signals, vehicle, cols: Columns) -> np.ndarray:
     """Stacked design (N, 6, p) of all candidate effects."""
     if not cols.effects:
         return np.zeros((len(s), 6, 0))
     parts = []
     for e in cols.effects:
-        X = CATALOG[e].design(s, vehicle)
+        X = lookup(e).design(s, vehicle)
         if e in cols.force_only:
             X = X.copy()
             X[:, 3:, :] = 0.0
@@ -210,7 +238,11 @@ def fit(stats: BlockStats, effects: list[str], blocks=None) -> np.ndarray:
     """Parameters (minus neutral values) of ``effects`` on ``blocks`` (all), within the plausible bounds."""
     G, h, _, _ = stats.total if blocks is None else stats.subset(blocks)
     idx = stats.cols.index(effects)
-    return solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *stats.bounds(idx))
+    T = tie_map(effects)
+    if T is None:
+        return solve(G[np.ix_(idx, idx)], h[idx], 1e-9, *stats.bounds(idx))
+    lb, ub = stats.bounds(idx[free_columns(T)])
+    return T @ solve(T.T @ G[np.ix_(idx, idx)] @ T, T.T @ h[idx], 1e-9, lb, ub)
 
 
 def at_bound(stats: BlockStats, effects: list[str], effect: str | None = None) -> bool:
@@ -241,9 +273,13 @@ def inflation(stats: BlockStats, effects: list[str]) -> np.ndarray:
     if idx.size == 0:
         return np.zeros(0)
     G = stats.G.sum(0)[np.ix_(idx, idx)]
+    T = tie_map(effects)
+    if T is not None:  # tied effects: one parameter, the inflation of it
+        G = T.T @ G @ T
     d = np.sqrt(np.maximum(np.diag(G), 1e-300))
-    C = G / np.outer(d, d) + 1e-12 * np.eye(idx.size)
-    return np.diag(np.linalg.inv(C))
+    C = G / np.outer(d, d) + 1e-12 * np.eye(len(d))
+    vif = np.diag(np.linalg.inv(C))
+    return vif if T is None else T @ vif
 
 
 class CrossValidator:
@@ -271,7 +307,11 @@ class CrossValidator:
         if key not in self._cache:
             st, ev = self.stats, on or self.stats
             idx = st.cols.index(list(key[0]))
-            if idx.size:
+            T = tie_map(key[0])
+            if idx.size and T is not None:
+                Gt = np.einsum("ji,fjk,kl->fil", T, self._train_G[:, idx[:, None], idx[None, :]], T)
+                theta = solve_many(Gt, self._train_h[:, idx] @ T, *st.bounds(idx[free_columns(T)])) @ T.T
+            elif idx.size:
                 theta = solve_many(self._train_G[:, idx[:, None], idx[None, :]], self._train_h[:, idx],
                                    *st.bounds(idx))
             else:

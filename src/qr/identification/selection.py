@@ -33,7 +33,7 @@ from typing import ClassVar
 import numpy as np
 
 from ..allowed import check_fields, setting
-from ..effects import CATALOG
+from ..effects import CATALOG, TIED, with_unit
 from .bootstrap import bootstrap
 from .edge import EDGE, Margins, margin, rank_key
 from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit, solve
@@ -104,9 +104,11 @@ class Selection:
 
 
 def simplicity(effects) -> tuple:
-    """Order among equivalent sets: fewer parameters first, then catalog order."""
+    """Order among equivalent sets: fewer free parameters first (tied effects share theirs), then catalog
+    order."""
     effects = list(effects)
-    return sum(len(CATALOG[e].params) for e in effects), sorted(list(CATALOG).index(e) for e in effects)
+    shared = sum(len(CATALOG[g[0]].params) * (len(g) - 1) for g in TIED if set(g) <= set(effects))
+    return sum(len(CATALOG[e].params) for e in effects) - shared, sorted(list(CATALOG).index(e) for e in effects)
 
 
 def same_term(effects) -> bool:
@@ -124,8 +126,9 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
     signature is far below the noise, its own-rows estimate is attenuated by regressor noise but
     its loss hardly moves.)  Returns why, or None.
     """
-    shared = [e for e in effects if set(CATALOG[e].axes) & {0, 1, 2} and set(CATALOG[e].axes) & {3, 4, 5}
-              and e not in stats.cols.force_only]
+    tied = {e for g in TIED if set(g) <= set(effects) for e in g}  # one term's force and moment (TIED)
+    shared = [e for e in effects if (set(CATALOG[e].axes) & {0, 1, 2} and set(CATALOG[e].axes) & {3, 4, 5}
+                                     or e in tied) and e not in stats.cols.force_only]
     if row_stats is None or not shared:
         return None
     idx = stats.cols.index(effects)
@@ -142,7 +145,8 @@ def consistent(stats: BlockStats, row_stats, effects: list[str], cfg: SelectionC
         if m.at_least(grow, cfg.consistency_rel, on_edge=True) and m.at_least(t, cfg.consistency_t, on_edge=True):
             cols = Columns.of(effects)
             show = "; ".join(f"{e}: " + ", ".join(
-                f"{p} = {v + n:.4g}" for p, v, n in zip(CATALOG[e].params, own[cols.slices[e]], CATALOG[e].neutral))
+                f"{p} = {with_unit(e, p, v + n)}" for p, v, n in zip(CATALOG[e].params, own[cols.slices[e]],
+                                                                 CATALOG[e].neutral))
                 for e in shared)
             return (f"force and torque disagree: fitted together, the {name} rows' residual grows by "
                     f"{100 * grow:.0f} % over their own fit ({show})")

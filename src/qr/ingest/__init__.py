@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import QrInputError
-from ..flight import ROTORS, validate_flight
+from ..flight import ROTORS, to_spec_frames, validate_flight
 from ..vehicle import SPEED_IN_RPM
 from . import cf_usd, csv, rosbag, ulog
 
@@ -45,12 +45,16 @@ def detect_format(path: Path) -> str:
     return "csv"
 
 
+# formats whose frames the reader knows (and converts itself)
+FRAMES_KNOWN = {"ulog": "read from PX4's NED / FRD by the ULog reader", "cf-usd": "the Crazyflie's own ENU / FLU"}
 COMMANDS = ["cmd1", "cmd2", "cmd3", "cmd4"]  # an adapter's motor commands beside the rotor speeds, in [0, 1]
 
 
-def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = None) -> pd.DataFrame:
-    """Read ``src`` in ``fmt`` (or detect it) and validate it against ``vehicle`` (the stage that writes
-    it is :mod:`qr.stages.ingest`)."""
+def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = None,
+             frame: str = "enu-flu") -> pd.DataFrame:
+    """Read ``src`` in ``fmt`` (or detect it), its frames ``frame`` converted to the spec's
+    (:func:`qr.flight.to_spec_frames`), and validate it against ``vehicle`` (the stage that writes it is
+    :mod:`qr.stages.ingest`)."""
     src = Path(src)
     if not src.exists():
         raise QrInputError(src, "log file does not exist", "check the path")
@@ -69,7 +73,11 @@ def read_log(src: str | Path, vehicle, fmt: str = "auto", topics: dict | None = 
         raise QrInputError(src, f"unknown format '{fmt}'", f"use one of auto, {', '.join(ADAPTERS)}")
     if topics and fmt != "rosbag":
         raise QrInputError(src, f"--topic is for ROS bags, and this log is {fmt}", "leave --topic out")
+    if frame != "enu-flu" and fmt in FRAMES_KNOWN:
+        raise QrInputError(src, f"--frame {frame} is for CSV, Parquet and ROS bag logs, and this log is {fmt}, "
+                                f"{FRAMES_KNOWN[fmt]}", "leave --frame out")
     df = ADAPTERS[fmt](src, topics) if fmt == "rosbag" else ADAPTERS[fmt](src)
+    df = to_spec_frames(df, frame, src)
     unit = df.attrs.get("rotor_unit")
     if unit and vehicle is not None and unit != vehicle.rotor_speed_unit:  # rotor speeds in the vehicle's unit
         for c in ("u1", "u2", "u3", "u4"):

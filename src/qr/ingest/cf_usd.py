@@ -7,7 +7,9 @@ up to a trailing CRC32 (zlib) of everything before it.  Little-endian.
 
 The canonical flight takes its rows from the motion-capture pose ``estPose``
 (``locSrv.*``, stamped on the vehicle's clock) and interpolates the 500 Hz block
-(rotor ``rpm``, gyro, accelerometer, battery) onto those stamps.
+(rotor ``rpm``, gyro, accelerometer, battery) onto those stamps.  ``read_fast`` gives the 500 Hz block
+itself on the same clock, in SI units, with what the canonical flight leaves out: the on-board state
+estimate, the motor commands and the controller's own log (``ctrlLee.*``), which ``qr replay`` reads.
 """
 
 from __future__ import annotations
@@ -134,3 +136,43 @@ def read(path: str | Path) -> pd.DataFrame:
         if src in fast:
             df[col] = interp(src, scale)
     return df
+
+
+# the 500 Hz block's variables in SI: name -> (source, scale); ctrlLee.* is kept as logged (SI already:
+# rad, rad/s, N, N m), with its dots replaced by underscores
+FAST_SI = {
+    "px": ("stateEstimate.x", 1.0), "py": ("stateEstimate.y", 1.0), "pz": ("stateEstimate.z", 1.0),
+    "vx": ("stateEstimate.vx", 1.0), "vy": ("stateEstimate.vy", 1.0), "vz": ("stateEstimate.vz", 1.0),
+    "qw": ("stateEstimate.qw", 1.0), "qx": ("stateEstimate.qx", 1.0), "qy": ("stateEstimate.qy", 1.0),
+    "qz": ("stateEstimate.qz", 1.0),
+    "gx": ("gyro.x", DEG), "gy": ("gyro.y", DEG), "gz": ("gyro.z", DEG),  # deg/s -> rad/s
+    "ax": ("acc.x", G), "ay": ("acc.y", G), "az": ("acc.z", G),  # g -> m/s², specific force
+    "u1": ("rpm.m1", 1.0), "u2": ("rpm.m2", 1.0), "u3": ("rpm.m3", 1.0), "u4": ("rpm.m4", 1.0),
+    "cmd1": ("pwm.m1_pwm", 1.0 / 65535), "cmd2": ("pwm.m2_pwm", 1.0 / 65535),  # raw 16-bit -> [0, 1]
+    "cmd3": ("pwm.m3_pwm", 1.0 / 65535), "cmd4": ("pwm.m4_pwm", 1.0 / 65535),
+    "vbat": ("pm.vbatMV", 1e-3),  # mV -> V
+}
+
+
+def read_fast(path: str | Path) -> pd.DataFrame:
+    """The 500 Hz block (``fixedFrequency``) in SI on the canonical flight's clock (``t`` = 0 at the first
+    motion-capture pose): the on-board estimate (``px..vz``, ``qw..qz``: position, velocity, attitude as the
+    controller saw them), gyro, accelerometer, rotor speeds (rpm), motor commands (``cmd1..4`` in [0, 1]),
+    battery, and every ``ctrlLee.*`` variable as ``ctrlLee_*`` (the Lee controller's references and
+    outputs, where logged).  A variable the log lacks is left out."""
+    path = Path(path)
+    events = decode(path)
+    if POSE_EVENT not in events or FAST_EVENT not in events:
+        raise _fail(path, f"log lacks the '{POSE_EVENT}' or '{FAST_EVENT}' event",
+                    "log motion capture (on:estPose) and the 500 Hz block (on:fixedFrequency) in config.txt")
+    pose = events[POSE_EVENT]
+    fast = events[FAST_EVENT].drop_duplicates("timestamp_us", keep="last").sort_values("timestamp_us")
+    t0 = pose["timestamp_us"].min()
+    out = {"t": (fast["timestamp_us"].to_numpy() - t0) * 1e-6}
+    for col, (src, scale) in FAST_SI.items():
+        if src in fast:
+            out[col] = fast[src].to_numpy() * scale
+    for src in fast.columns:
+        if src.startswith("ctrlLee."):
+            out[src.replace(".", "_")] = fast[src].to_numpy()
+    return pd.DataFrame(out)

@@ -193,6 +193,6 @@ def mae_figure(doc: dict, path: Path) -> None:
         axs[k].set_xlabel("time ahead (s)")
         axs[k].set_ylim(bottom=0)
         axs[k].set_title(f"{NAMES[q]} ({UNITS[q]})", fontsize=10)
-    axs[0].set_ylabel("mean absolute error")
+        axs[k].set_ylabel(f"mean absolute error ({UNITS[q]})")
     axs[0].legend(fontsize=7)
     figures.save(fig, path)

@@ -101,12 +101,14 @@ def _axes(cell) -> list[float]:
 
 
 def parse_named(named) -> list[tuple[str, dict[str, float]]]:
-    """``"linear_drag(kx=0.0125, ky=0.0126); cg_offset(rx=0.001)"`` (qr.stages.diagnose.summary) -> pairs."""
+    """``"linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); cg_offset(rx=0.001 m)"`` (qr.stages.diagnose.summary:
+    each value followed by its unit, or bare) -> pairs of names and values."""
     if not isinstance(named, str) or named.strip() in ("", "none", "-"):
         return []
     out = []
     for name, params in re.findall(r"(\w+)\(([^)]*)\)", named):
-        out.append((name, {k.strip(): _num(v) for k, v in (p.split("=", 1) for p in params.split(",") if "=" in p)}))
+        out.append((name, {k.strip(): _num((v.split() or [""])[0])
+                           for k, v in (p.split("=", 1) for p in params.split(",") if "=" in p)}))
     return out
 
 
@@ -217,19 +219,15 @@ def _table(df: pd.DataFrame, caption: str) -> str:
     return body.replace('<table class="dataframe">', f'<table><caption>{html.escape(caption)}</caption>', 1)
 
 
-def _value(x: float, unit: str) -> str:
-    return f"{x:.3g}" + ("" if unit in ("-", "–") else " " + unit.replace("^2", "²"))
-
-
 def effects_html(effects: list[tuple[str, dict[str, float]]]) -> str:
     """The named effects in a reader's words, each parameter with its unit (the catalog's)."""
-    from ..effects import CATALOG
+    from ..effects import CATALOG, with_unit
 
     items = []
     for name, params in effects:
         eff = CATALOG.get(name)
-        units = dict(zip(eff.params, eff.units)) if eff else {}
-        vals = ", ".join(f"{html.escape(k)} = {html.escape(_value(v, units.get(k, '')))}" for k, v in params.items())
+        vals = ", ".join(f"{html.escape(k)} = {html.escape(with_unit(name, k, v, '.3g').replace('^2', '²'))}"
+                         for k, v in params.items())
         meaning = f" — {html.escape(eff.meaning)}" if eff and eff.meaning else ""
         items.append(f"<li><b>{html.escape(_plain(name))}</b>{meaning}: {vals} <span class=\"muted\">"
                      f"(<code>{html.escape(name)}</code>)</span></li>")
@@ -312,9 +310,29 @@ def _figure(path: Path, caption: str) -> str:
             f'<img alt="{html.escape(caption)}" src="data:image/png;base64,{data}"></figure>')
 
 
+def replay_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The closed-loop replay, one row per set and model: RMSE with units, when it parts, its ratio to nominal."""
+    rows = []
+    for _, r in table.iterrows():
+        parts = r.get("parts at (s)")
+        rows.append({"set": r["set"], "model": r["model"], "flights": int(r["flights"]),
+                     "position RMSE (m)": _g(r["position RMSE (m)"]) + _times(r.get("position / nominal")),
+                     "attitude RMSE (°)": _g(r["attitude RMSE (deg)"]) + _times(r.get("attitude / nominal")),
+                     "rotor speeds RMSE (%)": _g(r["rotor speeds RMSE (%)"]),
+                     "parts from the log after (s)": "never" if parts is None or not math.isfinite(_num(parts))
+                     else _g(_num(parts))})
+    return pd.DataFrame(rows)
+
+
+def _times(ratio) -> str:
+    x = _num(ratio) if ratio is not None else math.nan
+    return f" ({_g(x, 2)}×)" if math.isfinite(x) else ""
+
+
 def overview_html(diagnosis: pd.DataFrame, rollout: pd.DataFrame | None, thesis: dict[str, pd.DataFrame],
                   figures: list[tuple[Path, str]], title: str = "qr: what the quadrotor model gets wrong",
-                  fragment: bool = False, generalization: pd.DataFrame | None = None) -> str:
+                  fragment: bool = False, generalization: pd.DataFrame | None = None,
+                  replay: pd.DataFrame | None = None) -> str:
     """The page; ``fragment``: its body in a ``div.qr-overview`` with the style scoped to it (the
     landing page of Snakemake's report, ``workflow/report/workflow.rst``)."""
     sets = [SetResult.from_row(row) for _, row in diagnosis.iterrows()]
@@ -336,6 +354,12 @@ def overview_html(diagnosis: pd.DataFrame, rollout: pd.DataFrame | None, thesis:
     if rollout is not None and len(rollout):
         parts.append("<h2>Multi-step rollout on held-out flights (every third flight: same trajectories)</h2>")
         parts.append(_rollout_html(rollout))
+    if replay is not None and len(replay):
+        parts.append("<h2>Closed-loop replay under the vehicle's own controller</h2>")
+        parts.append(_table(replay_table(replay), "Each model flown in closed loop under the controller the flights "
+                            "flew (qr replay) along their rebuilt setpoints, against the held-out logs: RMSE over the "
+                            "flights and, in brackets, over the nominal model's (the first row of each set); the "
+                            "held-out flights repeat the training trajectories (interpolation)"))
     if thesis:
         parts.append("<h2>Residual learning: the thesis tables</h2>")
         for name, df in thesis.items():
@@ -363,7 +387,8 @@ def fragment_path(out) -> Path:
 
 
 def write_overview(out, diagnosis_csv, rollout_csv=None, thesis_csvs: dict | None = None,
-                   figures: list[tuple[str, str]] = (), fragment_out=None, generalization_csv=None) -> None:
+                   figures: list[tuple[str, str]] = (), fragment_out=None, generalization_csv=None,
+                   replay_csv=None) -> None:
     """Write the page ``out`` and its landing-page fragment (``fragment_out``, default :func:`fragment_path`).
     ``figures``: (png, caption) pairs; a missing png (a reduced run) is left out."""
     thesis = {_title(Path(v)): pd.read_csv(v) for v in (thesis_csvs or {}).values() if Path(v).exists()}
@@ -371,7 +396,8 @@ def write_overview(out, diagnosis_csv, rollout_csv=None, thesis_csvs: dict | Non
     figs = [(Path(p), c) for p, c in figures if Path(p).exists()]
     diagnosis = pd.read_csv(diagnosis_csv)
     gen = pd.read_csv(generalization_csv) if generalization_csv and Path(generalization_csv).exists() else None
+    replay = pd.read_csv(replay_csv) if replay_csv and Path(replay_csv).exists() else None
     for path, fragment in ((out, False), (fragment_out or fragment_path(out), True)):
-        text = overview_html(diagnosis, rollout, thesis, figs, fragment=fragment, generalization=gen)
+        text = overview_html(diagnosis, rollout, thesis, figs, fragment=fragment, generalization=gen, replay=replay)
         with atomic_path(path, suffix=".html") as tmp:
             Path(tmp).write_text(text)

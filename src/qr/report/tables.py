@@ -1,4 +1,7 @@
-"""Tables: CSV for machines plus a Markdown twin for people, both written atomically."""
+"""Tables: CSV for machines plus a Markdown twin for people, both written atomically.
+
+The CSV holds every float's shortest round-trip decimal (read back equal to the bit); the Markdown twin
+rounds for reading (``floatfmt``)."""
 
 from __future__ import annotations
 
@@ -12,6 +15,6 @@ from ..atomic import atomic_path, write_text
 def write_table(df: pd.DataFrame, csv_path: str | Path, floatfmt: str = ".4g", title: str | None = None) -> None:
     csv_path = Path(csv_path)
     with atomic_path(csv_path) as tmp:
-        df.to_csv(tmp, index=False, float_format="%.6g")
+        df.to_csv(tmp, index=False)
     md = (f"### {title}\n\n" if title else "") + df.to_markdown(index=False, floatfmt=floatfmt) + "\n"
     write_text(csv_path.with_suffix(".md"), md)

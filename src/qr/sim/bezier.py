@@ -50,12 +50,6 @@ def control_points(waypoints: np.ndarray, tangents: np.ndarray) -> np.ndarray:
     return np.stack([p[:-1], p[:-1] + v[:-1], p[1:] - v[1:], p[1:]], axis=1)
 
 
-def bernstein(s: np.ndarray) -> np.ndarray:
-    """Cubic Bernstein weights ``(N, 4)``; they sum to one (eq. 5.5 without its 3s does not)."""
-    s = np.asarray(s, dtype=float)[..., None]
-    return np.concatenate([(1 - s) ** 3, 3 * (1 - s) ** 2 * s, 3 * (1 - s) * s**2, s**3], axis=-1)
-
-
 @nb.njit(cache=True)
 def _curve(t, ctrl, t0, seg_T):
     """p, v, a (world) at time ``t`` (clamped to the trajectory's span)."""

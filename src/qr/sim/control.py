@@ -135,9 +135,48 @@ def control(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C):
     wrench = np.array([T, tau[0], tau[1], tau[2]])
     Binv = C[C_BINV:C_BINV + 16].reshape((4, 4))
     u2 = matvec(Binv, wrench)
-    u = np.empty(4)
     lo = C[C_UMIN] * C[C_UMIN]
     hi = C[C_UMAX] * C[C_UMAX]
+    if not _within(u2, lo, hi):
+        u2 = desaturate(Binv, wrench, lo, hi)
+    u = np.empty(4)
     for i in range(4):
         u[i] = math.sqrt(min(max(u2[i], lo), hi))
     return u, Rd
+
+
+@nb.njit(cache=True)
+def _within(u2, lo, hi):
+    for i in range(u2.shape[0]):
+        if u2[i] < lo or u2[i] > hi:
+            return False
+    return True
+
+
+@nb.njit(cache=True)
+def _largest_share(base, part, lo, hi):
+    """The largest ``s`` in [0, 1] with ``base + s part`` within [lo, hi] on every rotor that ``base`` holds
+    within it (a rotor ``base`` already takes out of range is left to the clip)."""
+    s = 1.0
+    for i in range(base.shape[0]):
+        if base[i] < lo or base[i] > hi:
+            continue
+        if part[i] > 0.0 and base[i] + part[i] > hi:
+            s = min(s, (hi - base[i]) / part[i])
+        elif part[i] < 0.0 and base[i] + part[i] < lo:
+            s = min(s, (lo - base[i]) / part[i])
+    return max(s, 0.0)
+
+
+@nb.njit(cache=True)
+def desaturate(Binv, wrench, lo, hi):
+    """Squared rotor speeds for ``wrench`` when some rotor would leave [lo, hi]: the yaw torque is given up
+    first, then roll and pitch together, the thrust kept (as flight stacks mix): clipping each rotor alone
+    turns a yaw demand beyond a weak yaw authority (the Hummingbird's C_Q / (C_T l) ~ 0.1) into roll and
+    pitch torques, and the attitude loop into a limit cycle between the rotor limits."""
+    thrust = matvec(Binv, np.array([wrench[0], 0.0, 0.0, 0.0]))
+    rp = matvec(Binv, np.array([0.0, wrench[1], wrench[2], 0.0]))
+    yaw = matvec(Binv, np.array([0.0, 0.0, 0.0, wrench[3]]))
+    s_rp = _largest_share(thrust, rp, lo, hi)
+    base = thrust + s_rp * rp
+    return base + _largest_share(base, yaw, lo, hi) * yaw

@@ -1,4 +1,4 @@
-"""Disturbance-force models for the simulation study: one small protocol, several adapters.
+"""Disturbance-force models for the simulation study: one small interface, several adapters.
 
 A force model maps body-frame signals to the unmodelled force ``f_a`` (N, body
 frame, eq. 4.34) the nominal model misses::
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol, runtime_checkable
 
 import numba as nb
 import numpy as np
@@ -43,15 +42,6 @@ MODEL8_B = np.array([0.4768, 0.2994, -0.3817])
 # ranges are not given.  Reading u in units of 1e4 rpm puts the hover force at
 # [0.46, 0.21, -0.70] N, the size of the thesis's residual (nominal RMSE 0.563 N).
 MODEL8_U_SCALE = 1.0e4
-
-
-@runtime_checkable
-class ForceModel(Protocol):
-    name: str
-    inputs: tuple[str, ...]
-
-    def predict(self, s: Signals) -> np.ndarray:
-        """Body-frame unmodelled force ``f_a`` (N, 3) in newtons."""
 
 
 @nb.njit(cache=True)

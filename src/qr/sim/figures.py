@@ -28,8 +28,12 @@ def tracking_figure(runs: dict, path, title: str) -> None:
     ax3.set_ylabel("y (m)")
     ax3.set_zlabel("z (m)")
     ax3.legend(fontsize=7, loc="upper left")
+    first_ax = None
     for i, ax_name in enumerate("xyz"):
-        ax = fig.add_subplot(3, 2, 2 * i + 2)
+        ax = fig.add_subplot(3, 2, 2 * i + 2, sharex=first_ax)  # one time axis, labelled at the bottom
+        first_ax = first_ax or ax
+        if i < 2:
+            ax.tick_params(labelbottom=False)
         for label, log in runs.items():
             c, ls = STYLE[label.split(":")[0]]
             ax.plot(log["t"], 1000 * (log[f"p{ax_name}"] - log[f"ref_p{ax_name}"]), color=c, ls=ls, lw=1,
@@ -83,8 +87,8 @@ def eigenvalue_figure(analyses: dict, path) -> None:
         lam = an["eigenvalues"]
         ax.scatter(lam.real, lam.imag, marker=markers[i % len(markers)], s=40, alpha=0.8, label=name)
     ax.set_aspect("equal")
-    ax.set_xlabel("Re λ")
-    ax.set_ylabel("Im λ")
+    ax.set_xlabel("Re λ (dimensionless)")
+    ax.set_ylabel("Im λ (dimensionless)")
     ax.legend(fontsize=7)
     ax.set_title("eig(M_{v,a}) at hover (eq. 5.15)", fontsize=10)
     save(fig, path)

@@ -29,7 +29,8 @@ P_LIN, P_QUAD, P_RDRAG, P_WIND, P_BBIAS, P_GE, P_GZ = 27, 30, 33, 34, 37, 40, 41
 P_CG, P_TBIAS, P_FLAP, P_MARKER = 42, 44, 47, 48
 P_REM_ON, P_UHOVER, P_REM = 51, 52, 53  # a learned torque remainder (qr.torque_remainder): flag, u_hover, W (3 x 11)
 P_RES_ON = 86  # a learned wrench (qr.residual): flag; the network follows at P[N_P:] (qr.residual.pack)
-N_P = 87
+P_RDM, P_TLIFT, P_HUB = 87, 88, 89  # rotor drag's moment k, translational lift k, hubs (x, y, z) x 4 from the layout
+N_P = 101
 N_X = 17
 MIN_GROUND_HEIGHT = 0.02  # m; keeps k T / p_z² finite if a crash is simulated
 
@@ -46,6 +47,8 @@ def true_params(vehicle, effects: list[dict] | None = None, residual: bool = Tru
     P[P_TAU] = vehicle.motor_time_constant
     P[P_GZ] = vehicle.ground_z
     P[P_UHOVER] = vehicle.hover_speed
+    for i, (x, y) in enumerate(vehicle.rotors.positions[:4]):
+        P[P_HUB + 3 * i:P_HUB + 3 * i + 3] = x, y, vehicle.hub_z
     W = vehicle.raw.get("torque_remainder")
     if W:
         P[P_REM_ON] = 1.0
@@ -84,6 +87,10 @@ def true_params(vehicle, effects: list[dict] | None = None, residual: bool = Tru
             P[P_MARKER:P_MARKER + 3] += [k["rx"], k["ry"], k["rz"]]
         elif n == "blade_flapping":
             P[P_FLAP] += k["k"]
+        elif n == "rotor_drag_moment":
+            P[P_RDM] += k["k"]
+        elif n == "translational_lift":
+            P[P_TLIFT] += k["k"]
         else:  # pragma: no cover - the catalog and this list must agree
             raise KeyError(n)
     if P[P_MASS] <= 0 or np.any(P[P_J:P_J + 3] <= 0):
@@ -183,6 +190,24 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
         h = x[2] + R20 * P[P_MARKER] + R21 * P[P_MARKER + 1] + R22 * P[P_MARKER + 2] - P[P_GZ]
         h = max(h, MIN_GROUND_HEIGHT)
         f2 += P[P_GE] * T / (h * h)
+    t0 = t1 = t2 = 0.0
+    if P[P_RDM] != 0.0 or P[P_TLIFT] != 0.0:
+        # at each hub r_i (from the CG: the layout, the hub height, less a CG offset), airspeed w = v_b + ω × r_i:
+        # the rotor drag's H-force -k u_i [w_x, w_y, 0] acts there (its moment about the CG), and the rotor's
+        # thrust grows by k_lift (w_x² + w_y²)
+        for i in range(4):
+            rx = P[P_HUB + 3 * i] - P[P_CG]
+            ry = P[P_HUB + 3 * i + 1] - P[P_CG + 1]
+            rz = P[P_HUB + 3 * i + 2]
+            hx = vb0 + wy * rz - wz * ry
+            hy = vb1 + wz * rx - wx * rz
+            Hx = -P[P_RDM] * u_eff[i] * hx
+            Hy = -P[P_RDM] * u_eff[i] * hy
+            lift = P[P_TLIFT] * (hx * hx + hy * hy)
+            f2 += lift
+            t0 += -rz * Hy + ry * lift
+            t1 += rz * Hx - rx * lift
+            t2 += rx * Hy - ry * Hx
     r0 = r1 = r2 = r3 = r4 = r5 = 0.0
     if P[P_RES_ON] != 0.0:
         r0, r1, r2, r3, r4, r5 = residual_wrench(P, vb0, vb1, vb2, wx, wy, wz, -R20, -R21, -R22, u_eff)
@@ -193,9 +218,9 @@ def _accels(x, u_eff, P, f_ext, tau_ext):
     ax = (R00 * f0 + R01 * f1 + R02 * f2 + P[P_WIND]) / m
     ay = (R10 * f0 + R11 * f1 + R12 * f2 + P[P_WIND + 1]) / m
     az = (R20 * f0 + R21 * f1 + R22 * f2 + P[P_WIND + 2]) / m - G
-    t0 = G0 - P[P_CG + 1] * T + P[P_TBIAS + 0] + P[P_FLAP] * vb1 + tau_ext[0]
-    t1 = G1 + P[P_CG + 0] * T + P[P_TBIAS + 1] - P[P_FLAP] * vb0 + tau_ext[1]
-    t2 = G2 + P[P_TBIAS + 2] + tau_ext[2]
+    t0 += G0 - P[P_CG + 1] * T + P[P_TBIAS + 0] + P[P_FLAP] * vb1 + tau_ext[0]
+    t1 += G1 + P[P_CG + 0] * T + P[P_TBIAS + 1] - P[P_FLAP] * vb0 + tau_ext[1]
+    t2 += G2 + P[P_TBIAS + 2] + tau_ext[2]
     if P[P_REM_ON] != 0.0:
         for k in range(3):
             base = P_REM + 11 * k

@@ -7,12 +7,12 @@ motor lag), as a real log has them.  For the diagnosis tests and ``benchmarks/ro
 test extra (``rotorpy``).
 
 The expected diagnosis of such a flight goes through the export's mapping (:mod:`qr.export.rotorpy`)
-read backwards: RotorPy's rotor drag ``k_d`` is qr's ``rotor_drag`` ``k`` (the vehicle file in rad/s),
-its flapping ``k_flap`` is ``blade_flapping`` ``k = -k_flap Σω_hover``, its parasitic drag ``c_D`` is
-``quadratic_drag`` ``c``.  RotorPy's induced-inflow drag ``k_z`` (vertical, ``-k_z Σω v_z``) is qr's
-``linear_drag`` ``kz = k_z Σω_hover`` (at hover rotor speed).  Translational lift ``k_h`` has no qr
-term: it is left out of the flights whose names are checked (``k_h = 0``), and measured apart
-(benchmarks/rotorpy.py).
+read backwards: RotorPy's rotor drag ``k_d`` (its H-force at each hub, with the hub's airspeed) is qr's
+``rotor_drag`` and ``rotor_drag_moment``, one ``k`` (the vehicle file in rad/s); its translational lift
+``k_h`` is ``translational_lift`` ``k``; its flapping ``k_flap`` is ``blade_flapping`` ``k = -k_flap
+Σω_hover``; its parasitic drag ``c_D`` is ``quadratic_drag`` ``c``.  RotorPy's induced-inflow drag ``k_z``
+(vertical, ``-k_z Σω v_z``) is qr's ``linear_drag`` ``kz = k_z Σω_hover`` (at hover rotor speed); its
+moments at the hubs (a roll/pitch-rate damping ``-k_z Σ ω_i y_i² ω_x``, …) have no catalog term.
 """
 
 from __future__ import annotations
@@ -31,9 +31,10 @@ AERO_KEYS = ("k_d", "k_z", "k_h", "k_flap", "c_Dx", "c_Dy", "c_Dz")
 def vehicle_dict(qp: dict, name: str) -> dict:
     """The nominal qr vehicle of RotorPy parameters (rotor speeds in rad/s; CG at the rotors' centre)."""
     pos = np.array([np.asarray(p, float) for p in qp["rotor_pos"].values()])
-    if np.any(pos[:, 2] != 0) or any(qp[k] != 0 for k in ("Ixy", "Ixz", "Iyz")):
-        raise ValueError("qr's vehicle files take rotors in the CG's plane and principal inertias on the body axes")
-    return {"name": name, "mass": float(qp["mass"]), "inertia": [float(qp[k]) for k in ("Ixx", "Iyy", "Izz")],
+    if np.ptp(pos[:, 2]) != 0 or any(qp[k] != 0 for k in ("Ixy", "Ixz", "Iyz")):
+        raise ValueError("qr's vehicle files take rotor hubs at one height and principal inertias on the body axes")
+    hub = {"hub_z": float(pos[0, 2])} if pos[0, 2] else {}
+    return {"name": name, **hub, "mass": float(qp["mass"]), "inertia": [float(qp[k]) for k in ("Ixx", "Iyy", "Izz")],
             "thrust_coeff": float(qp["k_eta"]), "torque_coeff": float(qp["k_m"]), "rotor_speed_unit": "rad_s",
             "layout": [{"x": float(x), "y": float(y), "yaw_sign": float(s)}
                        for (x, y, _), s in zip(pos, qp["rotor_directions"])],
@@ -49,8 +50,11 @@ def expected_effects(qp: dict) -> dict[str, dict]:
     """The catalog effects (name -> parameters) a diagnosis should name on a flight of ``qp``'s aerodynamics."""
     omega_sum = qp["num_rotors"] * hover_speed(qp)
     out = {}
-    if qp.get("k_d", 0):
+    if qp.get("k_d", 0):  # the H-force at the hubs: its force and its moment, one k
         out["rotor_drag"] = {"k": float(qp["k_d"])}
+        out["rotor_drag_moment"] = {"k": float(qp["k_d"])}
+    if qp.get("k_h", 0):
+        out["translational_lift"] = {"k": float(qp["k_h"])}
     if qp.get("k_z", 0):
         out["linear_drag"] = {"kx": 0.0, "ky": 0.0, "kz": float(qp["k_z"]) * omega_sum}
     if qp.get("k_flap", 0):

@@ -74,11 +74,6 @@ def analyse(W_v, W_a, mass: float, dt: float) -> dict:
     }
 
 
-def axis_roots(a: float, v: float, dt: float) -> np.ndarray:
-    """The two eigenvalues of one axis with ``W_a/m = a``, ``W_v/m = v`` (roots of the quadratic above)."""
-    return np.roots([1.0, -(1.0 + a), a - dt * v])
-
-
 def format_eigs(lam) -> str:
     return "; ".join(f"{z.real:.4f}{z.imag:+.4f}i" for z in np.asarray(lam, dtype=complex))
 

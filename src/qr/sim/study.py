@@ -31,7 +31,9 @@ import pandas as pd
 from ..effects import Signals, validate_effect_list
 from ..frames import G, euler_zyx, rot_to_quat
 from ..states import COLUMNS
-from .control import Gains, control, controller_params
+from ..replay.fly import ideal_speeds
+from ..replay.lee import lee_step
+from .control import C_UMAX, C_UMIN, Gains, control, controller_params
 from ..frames_compiled import quat_to_R
 from .plant import (P_DELAY, P_MASS, P_TAU, delayed_speeds, history_buffer, plant_accels, rk4_step,
                     true_params)
@@ -60,6 +62,8 @@ class SimSettings:
     duration: float | None = None  # s; None: the trajectory's
     gains: Gains = field(default_factory=Gains)
     limits: Limits = field(default_factory=Limits)
+    controller: str = "lqr"  # lqr: the thesis's LQR + PD; lee: the Crazyflie firmware's (qr.replay.lee), the gains of
+    #                          conf/controller/lee.yaml, attitude gains scaled to the vehicle's inertia
 
 
 @dataclass
@@ -164,8 +168,20 @@ OK, NOT_FINITE, POSITION, SPEED, ACCEL = 0, 1, 2, 3, 4
 
 
 @nb.njit(cache=True)
+def _lee(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C, L, integ, Binv):
+    """The Lee controller's rotor-speed command (the vehicle's inverse rotor map, clipped to its limits) and its
+    desired attitude; the disturbance estimate enters the acceleration feed-forward as the firmware's does."""
+    T, tau, Rd, _ = lee_step(x[0:3].copy(), x[3:6].copy(), quat_to_R(x[6:10]), x[10:13].copy(), p_ref, v_ref,
+                             a_ref + a_comp, np.zeros(3), yaw, yaw_rate, L, integ)
+    u = ideal_speeds(Binv, T, tau)
+    for i in range(4):
+        u[i] = min(max(u[i], C[C_UMIN]), C[C_UMAX])
+    return u, Rd
+
+
+@nb.njit(cache=True)
 def _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc, alpha, u_meas, u_dot, u_eff,
-         m_nom, ct_row, C, P, dt, hist, u0, limits, out, j, do_log):
+         m_nom, ct_row, C, P, dt, hist, u0, limits, out, j, do_log, L, integ, Binv):
     """Divergence check, control with compensation, logging, one RK4 step."""
     zero = np.zeros(3)
     for i in range(17):
@@ -185,7 +201,10 @@ def _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc
         return x, u_meas, ACCEL, am / G
     R = quat_to_R(x[6:10])
     a_comp = -(R @ f_est) / m_nom
-    u_cmd, Rd = control(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C)
+    if L.shape[0] > 0:
+        u_cmd, Rd = _lee(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C, L, integ, Binv)
+    else:
+        u_cmd, Rd = control(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C)
     if do_log:
         f_true = true_force(x, u_eff, u_meas, P, f_inj, m_nom, ct_row)
         row = out[j]
@@ -220,6 +239,12 @@ def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) 
     log_every = max(1, int(round(cfg.rate / cfg.log_rate)))
     P = true_params(veh, plant.effects)
     C = controller_params(veh, cfg.gains)
+    L, integ = np.zeros(0), np.zeros(6)
+    if cfg.controller == "lee":
+        from ..replay.lee import G_DT, LeeGains
+
+        L = LeeGains.firmware().scaled_to(veh.inertia, veh.mass).vector(float(veh.mass))
+        L[G_DT] = dt  # updated every step of the study
     m_nom = float(veh.mass)
     m_true = P[P_MASS]
     ct_row = veh.rotors.matrix[0].copy()
@@ -267,7 +292,8 @@ def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) 
             f_est = np.asarray(estimator.predict(s_est)[0], dtype=float)
         do_log = k % log_every == 0
         x, u_cmd, code, val = _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc, alpha,
-                                   u_meas, u_dot, u_eff, m_nom, ct_row, C, P, dt, hist, u0, limits, out, j, do_log)
+                                   u_meas, u_dot, u_eff, m_nom, ct_row, C, P, dt, hist, u0, limits, out, j, do_log,
+                                   L, integ, veh.rotors.inverse.copy())
         if code != OK:
             status, t_end = "diverged", t
             message = f"diverged at t = {t:.3f} s: {_reason(code, val, lim)}; the run was stopped and recorded"

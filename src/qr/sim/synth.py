@@ -47,6 +47,8 @@ class SynthConfig:
     noise_free: bool = False
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     gains: Gains = field(default_factory=Gains)
+    controller: str = "lqr"  # "lee": the Crazyflie firmware's Lee controller along `setpoints` (qr.replay.synth)
+    setpoints: dict | None = None  # controller "lee": qr.replay.synth.setpoints_record(...)
 
 
 TRUTH_COLUMNS = (["t", "px", "py", "pz", "vx", "vy", "vz", "ax", "ay", "az", "qw", "qx", "qy", "qz",
@@ -103,8 +105,12 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
                    traj: RandomTrajectory | None = None) -> pd.DataFrame:
     """Noise-free true states of the tracked point at the log stamps."""
     effects = validate_effect_list(effects)
-    rng = np.random.default_rng(cfg.seed)
-    traj = traj or random_trajectory(rng, cfg.duration, cfg.trajectory)
+    if cfg.controller == "lee":
+        from ..replay.synth import lee_truth
+
+        return lee_truth(vehicle, effects, cfg.setpoints, cfg.duration, cfg.rate, sim_rate(cfg), TRUTH_COLUMNS)
+    given = traj
+    traj = traj or _trajectory(cfg)
     log_every = max(1, math.ceil(max(cfg.sim_rate, MIN_SIM_RATE) / cfg.rate))
     dt = 1.0 / (cfg.rate * log_every)
     n_steps = int(round(cfg.duration / dt))
@@ -119,11 +125,87 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
         raise QrInputError("synthetic flight", f"the closed loop diverged at t = {t_bad:.2f} s",
                            "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
     truth = pd.DataFrame(out, columns=TRUTH_COLUMNS)
+    # the stamps a nanosecond clock logs (k dt carries the product's rounding, 22.499999999999996 for 22.5):
+    # written whole (qr.flight.write_flight), they read back as the decimals a logger would write
+    truth["t"] = np.round(truth["t"].to_numpy(), 9)
     lost = lost_control(truth)
     if lost:
-        raise QrInputError("synthetic flight", f"the controller lost the vehicle: {lost}",
-                           "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes")
+        raise QrInputError("synthetic flight", f"the controller lost the vehicle: {lost}{_why_lost(vehicle, effects, cfg, given)}",
+                           _what_flies(vehicle, effects, cfg, given))
     return truth
+
+
+def sim_rate(cfg: SynthConfig) -> float:
+    """The integration rate: ``sim_rate`` raised to a multiple of the log rate (and at least MIN_SIM_RATE)."""
+    return cfg.rate * max(1, math.ceil(max(cfg.sim_rate, MIN_SIM_RATE) / cfg.rate))
+
+
+def needed_tilt(vehicle, effects: list[dict], traj: RandomTrajectory, duration: float, step: float = 0.02
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Times and the tilt (deg) the thrust must take to fly ``traj`` exactly in the TRUE plant: the weight,
+    the reference's acceleration and the effects' forces (the catalog's terms at the reference's state,
+    hover-level rotor speeds for the thrust it needs; a body-frame drag turns with the attitude, so the
+    attitude is solved for, a few fixed-point passes).  What the controller's tilt limit must leave room for."""
+    from ..effects import Signals, total_term
+    from ..frames import G
+
+    t = np.arange(0.0, duration, step)
+    p, v, a, yaw, _ = traj.sample(t)
+    n = len(t)
+    inertial = vehicle.mass * (a + np.array([0.0, 0.0, G]))  # the nominal model's m (a + g), world
+    want = inertial.copy()
+    b1c = np.stack([np.cos(yaw), np.sin(yaw), np.zeros(n)], axis=1)
+    for _ in range(6):
+        b3 = want / np.linalg.norm(want, axis=1, keepdims=True)
+        b2 = np.cross(b3, b1c)
+        b2 /= np.linalg.norm(b2, axis=1, keepdims=True)
+        R = np.stack([np.cross(b2, b3), b2, b3], axis=2)
+        u = np.repeat(np.sqrt(np.linalg.norm(want, axis=1) / vehicle.rotors.matrix[0].sum())[:, None], 4, axis=1)
+        s = Signals(R=R, v_b=np.einsum("nji,nj->ni", R, v), a_b=np.einsum("nji,nj->ni", R, a), omega=np.zeros((n, 3)),
+                    alpha=np.zeros((n, 3)), u=u, u_dot=np.zeros((n, 4)), p=p)
+        f_a = total_term(effects, s, vehicle)[:, :3]
+        # m (a + g) = R (T e3 + f_a): the thrust vector takes what the effects' force across body z does not
+        want = inertial - np.einsum("nij,nj->ni", R, f_a * np.array([1.0, 1.0, 0.0]))
+    return t, np.degrees(np.arctan2(np.hypot(want[:, 0], want[:, 1]), want[:, 2]))
+
+
+def _trajectory(cfg: SynthConfig, v_max: float | None = None) -> RandomTrajectory:
+    from dataclasses import replace
+
+    tc = cfg.trajectory if v_max is None else replace(cfg.trajectory, v_max=v_max)
+    return random_trajectory(np.random.default_rng(cfg.seed), cfg.duration, tc)
+
+
+def _why_lost(vehicle, effects, cfg: SynthConfig, traj) -> str:
+    """Where the trajectory needs more tilt than the controller's limit: the mechanism, with its numbers."""
+    if traj is not None:  # a trajectory given by the caller: nothing to say about --v-max
+        return ""
+    t, tilt = needed_tilt(vehicle, effects, _trajectory(cfg), cfg.duration)
+    i, limit = int(np.argmax(tilt)), cfg.gains.max_tilt_deg
+    if tilt[i] <= limit:
+        return ""
+    first = t[np.argmax(tilt > limit)]
+    return (f"; from t = {first:.1f} s the trajectory needs more tilt than the controller's limit of {limit:g} deg "
+            f"against the weight, its acceleration and the effects' forces (up to {tilt[i]:.0f} deg at "
+            f"t = {t[i]:.1f} s)")
+
+
+def _what_flies(vehicle, effects, cfg: SynthConfig, traj) -> str:
+    """The fix: the highest --v-max (to 0.05 m/s) whose trajectory needs no more tilt than the controller's
+    limit, where the tilt is what lost the vehicle; else the generic advice."""
+    generic = "lower the trajectory's speed or tilt (--v-max, --tilt-max) or the effects' sizes"
+    limit = cfg.gains.max_tilt_deg
+    fits = lambda v: needed_tilt(vehicle, effects, _trajectory(cfg, v), cfg.duration)[1].max() <= limit  # noqa: E731
+    if traj is not None or fits(cfg.trajectory.v_max):
+        return generic
+    lo, hi = 0.0, cfg.trajectory.v_max
+    while hi - lo > 0.05:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid)
+    if lo < 0.05:
+        return "lower the effects' sizes: their forces alone need more tilt than the controller's limit"
+    return (f"--v-max {np.floor(lo * 20) / 20:.2f} keeps the tilt it needs within the limit at this seed, or lower "
+            "the effects' sizes")
 
 
 # A flight the controller no longer tracks is not a flight a pilot would log: its chaos also makes its
@@ -224,7 +306,10 @@ def write_synth(outdir, vehicle, effects: list[dict], cfg: SynthConfig, force: b
             "noise": asdict(cfg.noise),
             "trajectory": asdict(cfg.trajectory),
             "samples": len(flight),
+            "controller": cfg.controller,
         }
+        if cfg.controller == "lee":  # what qr replay rebuilds the flight from
+            meta["setpoints"] = {**cfg.setpoints, "sim_rate_hz": sim_rate(cfg)}
         write_flight(flight, tmp / "flight.csv")
         save_vehicle(vehicle, tmp / "vehicle.yaml",
                      header="NOMINAL vehicle of a qr synth flight: the hidden effects are in truth.json")

@@ -109,7 +109,7 @@ def _read(flights, vehicle_file, overrides, reports, estimates, say, plotting=No
     from ..estimation.crossfit import diagnosis_estimates
 
     settings = Settings.of(_compose(overrides))
-    read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say)
+    read = check_flights([str(f) for f in flights], measured, vehicle, settings.diagnose, say, vehicle_file)
     if plotting:
         plotting.start()
     work = diagnosis_estimates([fs.used for fs in read.split], [Path(f).name for f in flights], vehicle,
@@ -140,14 +140,17 @@ def _write(out, diagnosis, vehicle, figures: bool, anatomy, force: bool) -> dict
     doc = document(diagnosis)
     with atomic_dir(out, force=force, command="qr diagnose") as tmp:
         figs = make_figures(tmp, diagnosis, vehicle, anatomy) if figures else {}
-        write_report(tmp, diagnosis, figs)
+        write_report(tmp, diagnosis, figs, vehicle)
         write_json(tmp / "diagnosis.json", doc)
         save_vehicle(diagnosis.extended_vehicle, tmp / "extended_vehicle.yaml",
                      header=f"Extended vehicle from qr diagnose of {', '.join(doc['flights'])}: "
-                            "the nominal parameters plus the named effects"
-                            + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
-                               "where the refinement may write them (diagnosis.json: refine)"
-                               if diagnosis.refinement is not None else ""))
+                            + ("the vehicle as given, nothing added: the model does not describe this flight "
+                               "(diagnosis.json: described, misfit; what it identifies is in its effects)"
+                               if not diagnosis.described else
+                               "the nominal parameters plus the named effects"
+                               + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error "
+                                  "where the refinement may write them (diagnosis.json: refine)"
+                                  if diagnosis.refinement is not None else "")))
     return doc
 
 
@@ -193,6 +196,7 @@ def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=(), est
     rows = []
     reports = _reports(nis_files)
     estimates = estimates or [None] * len(flights)
+    veh = load_vehicle(vehicle)
     with atomic_dir(out_dir) as tmp:
         for f, rep, est in zip(flights, reports, estimates):
             name = Path(f).stem
@@ -202,7 +206,8 @@ def diagnose_each(flights, nis_files, vehicle, out_dir, table, overrides=(), est
             rows.append({
                 "flight": name,
                 "effects": ", ".join(e["name"] for e in doc["effects"]) or "-",
-                **{f"{e['name']}.{k}": v for e in doc["effects"] for k, v in e["parameters"].items()},
+                **{f"{e['name']}.{k}" + _unit_suffix(e["name"], k, veh): v for e in doc["effects"]
+                   for k, v in e["parameters"].items()},
                 "nominal_fz_rmse": doc["nominal"]["force_rmse"][2],
                 "extended_fz_rmse": doc["extended"]["force_rmse"][2],
                 "noise_fz_rmse": doc["noise_floor"]["force_rmse"][2],
@@ -223,13 +228,22 @@ def carry_over(extended_vehicle, base_vehicle, out) -> None:
 
 
 
+def _unit_suffix(name: str, param: str, vehicle=None) -> str:
+    """A table column's unit: ``' (N s/m)'``, nothing for a ratio."""
+    from ..effects import DIMENSIONLESS, unit
+
+    u = unit(name, param, vehicle)
+    return "" if u in ("", DIMENSIONLESS) else f" ({u})"
+
+
 def summary(set_dirs: dict, table) -> pd.DataFrame:
     """The set diagnoses side by side: named effects, RMSEs, replay."""
     rows = []
     for name, d in set_dirs.items():
         doc = json.loads((Path(d) / "diagnosis.json").read_text())
-        eff = "; ".join(f"{e['name']}(" + ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()) + ")"
-                        for e in doc["effects"]) or "none"
+        from ..effects import effects_with_units
+
+        eff = effects_with_units(doc["effects"]) or "none"
         rows.append({
             "set": name, "flights": len(doc["flights"]), "samples": doc["samples"], "named": eff,
             "nominal_force_rmse": " / ".join(f"{x:.4f}" for x in doc["nominal"]["force_rmse"]),

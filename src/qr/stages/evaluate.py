@@ -112,7 +112,8 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     envelope = training_envelope(trained_on, vehs[0], ecfg, filter_cfg, say) if trained_on else None
     per_flight, steps, outside = {}, [], {}
     for i, (f, m) in enumerate(zip(flights, measured)):
-        conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command")
+        conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command",
+                            vehicles[0])
         parts, wins = [], []
         for st, meas, keep in estimated_pieces(f, m, vehs[0], ecfg, filter_cfg, reports[i] if reports else None,
                                                estimates[i] if estimates and reports else None, say):
@@ -209,7 +210,7 @@ def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, 
     out = []
     for seg in fs.used:
         got = stored.get(seg.window[0]) if stored else None
-        say(f"estimates of {Path(path).name} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+        say(f"estimates of {path} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
             + ("read from the filter stage" if got else "filtering"))
         st = got[0] if got else estimate(seg.rows, vehicle, settings)[0]
         out.append(pieces(st, seg.rows, ecfg.trim_s))

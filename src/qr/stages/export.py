@@ -28,11 +28,7 @@ def target_module(to: str):
 
 
 def expected_outputs(to: str, vehicle) -> list[str]:
-    from ..export.rotorpy import file_stem
-
-    stem = file_stem(vehicle)
-    return ["mapping.md", *{"rotorpy": [f"{stem}_params.py"], "mujoco": [f"{stem}.xml"],
-                            "px4-gz": [f"{stem}/", f"{stem}.params"]}[to]]
+    return ["mapping.md", *target_module(to).outputs(vehicle)]
 
 
 def run_export(vehicle_path, to: str, out, force: bool = False) -> list[Path]:
@@ -47,7 +43,7 @@ def run_export(vehicle_path, to: str, out, force: bool = False) -> list[Path]:
     out = check_out_dir(out, inputs=[vehicle_path], force=force, expected=expected_outputs(to, vehicle))
     pp = mapping.plant_of(vehicle)
     rows = module.rows(vehicle, pp)
-    text = mapping.render(to, str(vehicle_path), vehicle, rows, module.INTRO, __version__)
+    text = mapping.render(to, str(vehicle_path), vehicle, rows, module.INTRO, __version__, pp)
     with atomic_dir(out, force=force, command="qr export") as tmp:
         names = module.write(tmp, vehicle, pp, str(vehicle_path), __version__)
         write_text(tmp / "mapping.md", text)

@@ -6,7 +6,7 @@ Run alone with Hydra (config group ``filter``, ``conf/filter/``)::
     qr filter filter=auto filter.flight=flight.csv filter.vehicle=asctec_hummingbird filter.out=states.parquet
 
 The output defaults to ``<results>/filter/<flight stem>.parquet`` with the
-report beside it (``.nis.json``).  The Snakemake rule calls :func:`run_with_overrides`.
+report beside it (``.nis.json``).  The workflow's filter jobs call :func:`run_batch`.
 """
 
 from __future__ import annotations
@@ -116,13 +116,32 @@ def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), na
                       track=track, crossfit_out=crossfit_out)
 
 
-def figures(flight_path, states_path, outdir, title: str = "") -> list[Path]:
-    """Filtered vs raw (thesis Figs. 4.2–4.8) for one flight: ``outdir/filter_<quantity>.png``."""
+def run_batch(flights, vehicle_file, outs, nis_outs, crossfit_outs, names, overrides=()) -> None:
+    """The workflow's filter job: several flights of one set in one process (Python, numba's compiled
+    kernels and Hydra start once per batch, not once per flight), each as :func:`run_filter` alone
+    (``track=False``: their MLflow runs are logged by :func:`track_runs`)."""
+    import sys
+
+    cfg = to_dict(compose(list(overrides)))
+    vehicle_file = vehicle_file or find_vehicle(cfg["vehicle"])
+    for job in zip(flights, outs, nis_outs, crossfit_outs, names, strict=True):
+        flight, out, nis_out, crossfit_out, name = job
+        report = run_filter(flight, vehicle_file, out, nis_out, cfg["filter"], name, track=False,
+                            crossfit_out=crossfit_out)
+        print(f"{name}: filter={report['filter']}, NIS-inconsistent: {', '.join(report['inconsistent']) or 'none'}",
+              file=sys.stderr, flush=True)
+
+
+def figures(flight_path, states_path, outdir, title: str = "", vehicle_file=None) -> list[Path]:
+    """Filtered vs raw (thesis Figs. 4.2–4.8) for one flight: ``outdir/filter_<quantity>.png`` (the rotor
+    speeds in the unit of ``vehicle_file``)."""
     import pandas as pd
 
     from ..estimation.plots import filtered_vs_raw
+    from ..vehicle import load_vehicle
 
-    return filtered_vs_raw(read_flight(flight_path), pd.read_parquet(states_path), outdir, title)
+    unit = load_vehicle(vehicle_file).rotor_speed_unit if vehicle_file else None
+    return filtered_vs_raw(read_flight(flight_path), pd.read_parquet(states_path), outdir, title, unit)
 
 
 def summarize(nis_files: dict, out_csv) -> None:

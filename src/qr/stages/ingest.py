@@ -17,9 +17,9 @@ from ..ingest import read_log
 
 
 def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, align: bool = False,
-           report_offsets: bool = False, skip_checks=()) -> pd.DataFrame:
-    """Read ``src`` (``fmt`` or detected), validate it against ``vehicle`` (its conventions too:
-    :mod:`qr.conventions`, but ``skip_checks``) and write ``out`` atomically.
+           report_offsets: bool = False, skip_checks=(), frame: str = "enu-flu", vehicle_file=None) -> pd.DataFrame:
+    """Read ``src`` (``fmt`` or detected; written in ``frame``, :data:`qr.flight.FRAMES`), validate it against
+    ``vehicle`` (its conventions too: :mod:`qr.conventions`, but ``skip_checks``) and write ``out`` atomically.
 
     With ``report_offsets`` (``qr ingest``) or ``align`` the gyro's and the rotor stream's time offsets
     against the motion capture are estimated (:mod:`qr.ingest.align`, ``attrs["time_offsets"]``); with
@@ -27,8 +27,8 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
     from .. import conventions
     from ..flight import write_flight
 
-    df = read_log(src, vehicle, fmt, topics)
-    conventions.require(df, vehicle, src, skip_checks, "--skip-check {name}")
+    df = read_log(src, vehicle, fmt, topics, frame)
+    conventions.require(df, vehicle, src, skip_checks, "--skip-check {name}", vehicle_file)
     if align or report_offsets:
         from ..ingest import align as align_mod  # (scipy.signal: after the log is read)
 
@@ -40,8 +40,21 @@ def ingest(src, vehicle, out, fmt: str = "auto", topics: dict | None = None, ali
     return df
 
 
+def ingest_batch(srcs, vehicle_file, outs, fmt: str = "auto") -> None:
+    """The workflow's ingest job: several raw logs of one set in one process (Python and the readers
+    start once per batch, not once per log), each as :func:`ingest` alone."""
+    import sys
+
+    from ..vehicle import load_vehicle
+
+    vehicle = load_vehicle(vehicle_file)
+    for src, out in zip(srcs, outs, strict=True):
+        df = ingest(src, vehicle, out, fmt=fmt)
+        print(f"{src} -> {out}: {len(df)} rows", file=sys.stderr, flush=True)
+
+
 def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, topics: dict | None = None,
-                align: bool = False, skip_checks=()) -> pd.DataFrame:
+                align: bool = False, skip_checks=(), frame: str = "enu-flu") -> pd.DataFrame:
     """``qr ingest``: ``out`` checked (qr never replaces a file it did not write) before any work."""
     from ..outputs import check_out_file
     from ..vehicle import load_vehicle
@@ -51,24 +64,22 @@ def ingest_file(src, vehicle_file, out, fmt: str = "auto", force: bool = False, 
         raise QrInputError(out, "the output flight must be a .csv or .parquet file", "name --out *.csv or "
                            "*.parquet")
     return ingest(src, load_vehicle(vehicle_file), out, fmt, topics, align, report_offsets=True,
-                  skip_checks=skip_checks)
+                  skip_checks=skip_checks, frame=frame, vehicle_file=vehicle_file)
 
 
 def summarise_files(flights, vehicle_file, out, force: bool = False) -> pd.DataFrame:
     """``qr summary``: one row per flight file, ``out`` (CSV) and the same table beside it as Markdown."""
-    from ..atomic import atomic_path, write_text
     from ..flight import read_flight
     from ..ingest.summary import flight_summary  # (imported here: qr ingest needs none of it)
     from ..outputs import check_out_file
+    from ..report.tables import write_table
     from ..vehicle import load_vehicle
 
     for o in (out, Path(out).with_suffix(".md")):
         check_out_file(o, inputs=[*flights, vehicle_file], force=force)
     vehicle = load_vehicle(vehicle_file)
     table = pd.DataFrame([flight_summary(read_flight(f), vehicle, Path(f).stem) for f in flights])
-    with atomic_path(out) as tmp:
-        table.to_csv(tmp, index=False, float_format="%.6g")
-    write_text(Path(out).with_suffix(".md"), table.to_markdown(index=False, floatfmt=".4g") + "\n")
+    write_table(table, out)
     return table
 
 

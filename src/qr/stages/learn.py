@@ -341,6 +341,7 @@ class LearnSweep(SweepCallback):
         if not _is_learn(config):
             return
         from .. import tracking
+        from ..atomic import write_text
 
         out = _out(config)
         (out / "runs").mkdir(parents=True, exist_ok=True)
@@ -352,7 +353,7 @@ class LearnSweep(SweepCallback):
                   "sweeper_params": {str(k): str(v) for k, v in (config.hydra.sweeper.get("params") or {}).items()}}
         self._cm = tracking.run("learn", name, config=params, tags={"qr.sweep": name, "qr.parent": "true"})
         self._run = self._cm.__enter__()
-        (out / PARENT_FILE).write_text(self._run.id + "\n")
+        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
         self._progress = _Progress(out / "runs", count_jobs(config), name)
         self._progress.start()
         atexit.register(self._close, RuntimeError("a job of the sweep failed"))

@@ -100,11 +100,12 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     estimate_s = time.perf_counter() - t0
     _, val, by = holdout.validation(flights, ecfg.split, rcfg.validation, infos)
     parts, split = rf.split(pieces, rcfg.horizon, rcfg.validation, rcfg.stride, val, by)
-    say(f"validation: {', '.join(Path(f).name for f in split['validation'])}"
-        + (f" from t = {split['validation_from_s']:.2f} s" if split["by"] == "time" else
-           " (whole trajectories no training flight flies)" if split["by"] == "trajectory" else " (whole flights)"))
+    say(split_sentence(split))
     curve = []
     trained = rf.train(rcfg, veh, parts, seed, say, on_epoch=curve.append)
+    if trained.best_epoch == 0:
+        say(kept_sentence(trained.initial["val_loss"], [e["val_loss"] for e in trained.epochs],
+                          getattr(veh, "residual", None) is not None))
     raw = veh.to_dict()
     raw.pop("residual", None)
     physical = vehicle_from_dict(raw)  # the vehicle without a residual (a fine-tuned one is replaced)
@@ -113,6 +114,7 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     hybrid.residual = res
     blocks = rf.validation_blocks(parts, {"vehicle": physical, "hybrid": hybrid}, rcfg.horizon)
     doc = _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh)
+    doc["residual_size"] = training_size(res, parts, rcfg.horizon, physical)
     _write(out, force, physical, res, doc, say)
     if track:
         _track(run_name, parent_id, doc, out, trained.net, [*flights, vehicle])
@@ -168,6 +170,37 @@ def carry_residual(extended_vehicle, hybrid_vehicle, out) -> None:
         load_vehicle(tmp / "hybrid_vehicle.yaml")
 
 
+def training_size(res, parts, H: int, vehicle) -> dict:
+    """The trained wrench's RMS over every sample of the training windows (:func:`qr.residual.rms_size`): the
+    size ``qr export`` states where a simulator has no place for the network.  States are the filter's
+    estimates moved from the tracked point to the CG; rotor speeds those acting there (delay applied)."""
+    from .. import residual as rs
+    from ..frames import quat_to_rot, to_body
+    from ..sim.plant import P_MARKER, cg_from_tracked, true_params
+
+    P = true_params(vehicle, vehicle.effects, residual=False)
+    r = P[P_MARKER:P_MARKER + 3].copy()
+    X, U, flights = [], [], []
+    for pc in parts:
+        if not len(pc.train):
+            continue
+        w = pc.windows
+        edge = np.zeros(len(w.t) + 1, int)  # samples s … s + H of each training window
+        np.add.at(edge, pc.train, 1)
+        np.add.at(edge, np.minimum(pc.train + H + 1, len(w.t)), -1)
+        take = np.cumsum(edge[:-1]) > 0
+        x = w.X0[take].copy()
+        for row in x:
+            cg_from_tracked(row, r)
+        X.append(x)
+        U.append(w.inputs(P)[take])
+        flights += [pc.flight] if pc.flight not in flights else []
+    X = np.concatenate(X) if X else np.zeros((0, 13))
+    U = np.concatenate(U) if U else np.zeros((0, 4))
+    R = quat_to_rot(X[:, 6:10]) if len(X) else np.zeros((0, 3, 3))
+    return rs.rms_size(res, to_body(R, X[:, 3:6]), X[:, 10:13], R[:, 2, :] * -1.0, U, flights)
+
+
 def _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh) -> dict:
     import torch
 
@@ -217,13 +250,13 @@ def _write(out: Path, force: bool, physical, res, doc: dict, say) -> None:
     from ..atomic import atomic_dir, write_json, write_text
     from ..vehicle import load_vehicle, save_vehicle
 
-    note = (f"trained through the {doc['horizon']}-step rollout on {len(doc['flights']['training'])} flight(s) "
+    note = (f"trained through the {doc['horizon']}-step rollout on {', '.join(doc['flights']['training'])} "
             "by qr learn residual: a learned wrench, not a physical effect")
     with atomic_dir(out, force=force, command="qr learn residual") as tmp:
         rs.save_weights(res, tmp / "residual.npz")
         raw = physical.to_dict()
-        raw["residual"] = rs.block(res, str((tmp / "residual.npz").resolve()), note)
-        header = (f"Hybrid vehicle from qr learn residual on {', '.join(Path(f).name for f in doc['flights']['training'])}"
+        raw["residual"] = rs.block(res, str((tmp / "residual.npz").resolve()), note, doc.get("residual_size"))
+        header = (f"Hybrid vehicle from qr learn residual on {', '.join(doc['flights']['training'])}"
                   f": {doc['vehicle']} plus a learned wrench (residual.npz)")
         save_vehicle(raw, tmp / "hybrid_vehicle.yaml", header=header)
         load_vehicle(tmp / "hybrid_vehicle.yaml")  # what was written loads (weights, shapes, scaling)
@@ -242,10 +275,62 @@ def curve_figure(doc: dict, path: Path) -> None:
     ax.plot(x, [doc["initial_loss"]["train_loss"]] + [e["train_loss"] for e in ep], label="training", color="C0")
     ax.plot(x, [doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in ep], label="validation", color="C1")
     ax.axvline(doc["epochs"]["best"], color="0.5", ls=":", label=f"kept (epoch {doc['epochs']['best']})")
-    ax.set_xlabel("epoch (0: the vehicle without the residual)")
-    ax.set_ylabel("rollout loss (weighted MAE / rate_frozen)")
+    ax.set_xlabel("epoch (count; 0: " + ("the vehicle's own residual)" if doc["network"]["start"].startswith("fine")
+                                        else "the vehicle without the residual)"))
+    ax.set_ylabel("rollout loss (ratio: weighted MAE / rate_frozen's)")
     ax.legend(fontsize=7)
     figures.save(fig, path)
+
+
+def _listed(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def split_sentence(split: dict) -> str:
+    """Which flights train and which stop the training (``split``: :func:`qr.residual_fit.split`'s), by path."""
+    if split["by"] == "time":
+        return (f"1 flight given, {_listed(split['training'])}: its windows ending before t = "
+                f"{split['validation_from_s']:.2f} s train, those from t = {split['validation_from_s']:.2f} s on "
+                "validate (early stopping; never trained on)")
+    n = len(split["training"]) + len(split["validation"])
+    return (f"{n} flights given: {len(split['training'])} train{'s' if len(split['training']) == 1 else ''} "
+            f"({_listed(split['training'])}), {len(split['validation'])} validate{'s' if len(split['validation']) == 1 else ''} "
+            f"({_listed(split['validation'])}: early stopping, never trained on"
+            + ("; whole trajectories no training flight flies" if split["by"] == "trajectory" else "") + ")")
+
+
+def kept_sentence(initial: float, epochs: list[float], fine_tuned: bool) -> str:
+    """What is kept when no epoch's validation loss beat the start's."""
+    best = min(epochs) if epochs else float("nan")
+    return (f"no epoch improved the validation loss ({initial:.4g} at the start, {best:.4g} at best over "
+            f"{len(epochs)} epoch(s)): the weights at the start are kept, "
+            + ("the vehicle's own residual, unchanged by this training" if fine_tuned else
+               "a network of zero output (the hybrid flies as the vehicle without a residual)"))
+
+
+def change_sentence(H: int, val: dict) -> str:
+    """The hybrid's validation error at h = H against the vehicle's, per signal (``val``: the ratios to
+    rate_frozen of ``vehicle`` and ``hybrid``), each change with its numbers."""
+    from ..rollout import QUANTITIES
+
+    v, h = val["vehicle"], val["hybrid"]
+    known = [q for q in QUANTITIES if v[q] is not None and h[q] is not None]
+    lower = [q for q in known if h[q] < v[q]]
+    higher = [q for q in known if h[q] > v[q]]
+    same = [q for q in known if h[q] == v[q]]
+    change = lambda q: f"{q} ({v[q]:.4g} -> {h[q]:.4g} x rate_frozen, {100 * (h[q] / v[q] - 1):+.2g} %)"  # noqa: E731
+    parts = []
+    if lower:
+        parts.append("lowers the validation error of " + _listed([change(q) for q in lower]))
+    if higher:
+        parts.append("raises that of " + _listed([change(q) for q in higher]))
+    if same:
+        parts.append(("leaves " if parts else "leaves the validation error of ") + _listed(same)
+                     + " equal to the vehicle's to the last bit")
+    missing = [q for q in QUANTITIES if q not in known]
+    if missing:
+        parts.append(f"has no validation error of {_listed(missing)}")
+    return f"At h = {H} the residual " + ("; it ".join(parts) if parts else "cannot be compared") + "."
 
 
 def report(doc: dict) -> str:
@@ -255,25 +340,34 @@ def report(doc: dict) -> str:
     val, mae = doc["validation"]["ratio_to_rate_frozen_at_H"], doc["validation"]["mae"]
     hs = list(next(iter(next(iter(mae.values())).values())))
     fl = doc["flights"]
-    where = (f"{len(fl['validation'])} whole validation flight(s) ({', '.join(Path(f).name for f in fl['validation'])})"
+    split = {"by": fl["validation_by"], "training": fl["training"], "validation": fl["validation"],
+             **({"validation_from_s": fl["validation_from_s"]} if fl["validation_by"] == "time" else {})}
+    where = (f"{len(fl['validation'])} whole validation flight(s) ({_listed(fl['validation'])})"
              + (", whole trajectories no training flight flies" if fl["validation_by"] == "trajectory" else "")
              if fl["validation_by"] in ("flight", "trajectory") else
              f"the flight's time from {fl['validation_from_s']:.2f} s on")
-    best = min([doc["initial_loss"]["val_loss"]] + [e["val_loss"] for e in doc["loss_per_epoch"]])
+    fine_tuned = doc["network"]["start"].startswith("fine")
+    losses = [e["val_loss"] for e in doc["loss_per_epoch"]]
+    best = min([doc["initial_loss"]["val_loss"]] + losses)
+    if doc["epochs"]["best"] == 0:
+        training = (f"Training: {doc['epochs']['run']} epoch(s) ({doc['epochs']['stopped']}), "
+                    f"{doc['wall_s']['training']:.1f} s; " + kept_sentence(doc["initial_loss"]["val_loss"], losses,
+                                                                            fine_tuned) + ".")
+    else:
+        training = (f"Training: {doc['epochs']['run']} epoch(s) ({doc['epochs']['stopped']}), the weights of epoch "
+                    f"{doc['epochs']['best']} kept, {doc['wall_s']['training']:.1f} s; validation loss "
+                    f"{doc['initial_loss']['val_loss']:.4f} at the start ("
+                    + ("the vehicle's own residual, fine-tuned" if fine_tuned else "the vehicle without a residual")
+                    + f"), {best:.4f} with the kept weights.")
     lines = [f"# Residual trained through the rollout ({len(fl['training'])} training flight(s))", "",
+             split_sentence(split)[0].upper() + split_sentence(split)[1:] + ".", "",
              f"A {doc['network']['activation']} MLP {doc['network']['layers']} from {', '.join(doc['network']['inputs'])} "
              f"to a body force and torque, added to `{doc['vehicle']}` at every evaluation of the dynamics and "
              f"trained by back-propagating the {H}-step rollout loss (RK4, measured rotor speeds held) on "
              f"{doc['windows']['training']} training windows; early stopping on {doc['windows']['validation']} "
              f"windows of {where}. Loss: {doc['loss']['formula']}; signal weights "
              + ", ".join(f"{q} {w:g}" for q, w in doc["loss"]["signal_weights"].items())
-             + f", step weights ∝ h^{doc['loss']['horizon_power']:g}.", "",
-             f"Training: {doc['epochs']['run']} epoch(s) ({doc['epochs']['stopped']}), the weights of epoch "
-             f"{doc['epochs']['best']} kept, {doc['wall_s']['training']:.1f} s; validation loss "
-             f"{doc['initial_loss']['val_loss']:.4f} at the start ("
-             + ("the vehicle's own residual, fine-tuned" if doc["network"]["start"].startswith("fine") else
-                "the vehicle without a residual") + "), "
-             f"{best:.4f} with the kept weights.",
+             + f", step weights ∝ h^{doc['loss']['horizon_power']:g}.", "", training,
              "", "![training curve](figures/training_curve.png)", "",
              "## Validation windows (the compiled rollout of `qr evaluate`)", "",
              "MAE per step h: p (m), v (m/s), R (rad), w (rad/s); the ratio to `rate_frozen` at h = H.", ""]
@@ -283,12 +377,8 @@ def report(doc: dict) -> str:
     for m in ("rate_frozen", "vehicle", "hybrid"):
         cells = [fmt(mae[m][q][h]) for q in QUANTITIES for h in hs] + [fmt(val[m][q]) for q in QUANTITIES]
         lines.append(f"| {m} | " + " | ".join(cells) + " |")
-    better = [q for q in QUANTITIES if val["hybrid"][q] is not None and val["vehicle"][q] is not None
-              and val["hybrid"][q] < val["vehicle"][q]]
-    lines += ["", f"At h = {H} the residual lowers the validation error of {', '.join(better) or 'no signal'}"
-              + (f" and raises that of {', '.join(q for q in QUANTITIES if q not in better)}"
-                 if len(better) < len(QUANTITIES) else "") + ". These are the windows that stopped the training: "
-              "judge the model on held-out flights with `qr evaluate`.", ""]
+    lines += ["", change_sentence(H, val) + " These are the windows that stopped the training: judge the model on "
+              "held-out flights with `qr evaluate`.", ""]
     return "\n".join(lines)
 
 
@@ -452,6 +542,7 @@ class ResidualSweep(SweepCallback):
         import atexit
 
         from .. import tracking
+        from ..atomic import write_text
 
         self._started = time.time()
         out = Path(config.learn.out)
@@ -460,7 +551,7 @@ class ResidualSweep(SweepCallback):
         self._cm = tracking.run("learn", params["sweep"], config=params,
                                 tags={"qr.sweep": params["sweep"], "qr.parent": "true", "qr.kind": "residual"})
         self._run = self._cm.__enter__()
-        (out / PARENT_FILE).write_text(self._run.id + "\n")
+        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
         atexit.register(self._close, RuntimeError("a job of the sweep failed"))
 
     def on_multirun_end(self, config, **kwargs) -> None:

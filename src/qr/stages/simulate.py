@@ -53,8 +53,12 @@ def settings(sim: dict) -> SimSettings:
     rate = float(sim.get("rate", 1000.0))
     if rate < 500:
         raise QrInputError("simulate.rate", f"{rate} Hz is below 500 Hz", "simulate at 500 Hz or more (RK4 + rotor lag)")
+    controller = sim.get("controller", "lqr")
+    if controller not in ("lqr", "lee"):
+        raise QrInputError("simulate.controller", f"{controller!r} is not lqr or lee", "simulate.controller=lee")
     return SimSettings(rate=rate, log_rate=float(sim.get("log_rate", 100.0)), duration=sim.get("duration"),
-                       gains=Gains(**(sim.get("gains") or {})), limits=Limits(**(sim.get("limits") or {})))
+                       gains=Gains(**(sim.get("gains") or {})), limits=Limits(**(sim.get("limits") or {})),
+                       controller=controller)
 
 
 def parse_effects(items, where, vehicle=None) -> list[dict]:
@@ -201,8 +205,9 @@ def tracking_study(sim: dict, tracked=None, progress: bool = True):
 
 
 def _effects_str(effects) -> str:
-    return "; ".join(f"{e['name']}(" + ", ".join(f"{k}={v:.4g}" for k, v in e["parameters"].items()) + ")"
-                     for e in effects)
+    from ..effects import effects_with_units
+
+    return effects_with_units(effects)
 
 
 def _with_ratios(df: pd.DataFrame) -> pd.DataFrame:
@@ -278,7 +283,7 @@ def stability_study(sim: dict, tracked=None, progress: bool = True):
     cfg = settings(sim)
     if st.get("duration_s"):
         cfg.duration = float(st["duration_s"])
-    step_settings = SimSettings(cfg.rate, cfg.rate, cfg.duration, cfg.gains, cfg.limits)  # log every step
+    step_settings = SimSettings(cfg.rate, cfg.rate, cfg.duration, cfg.gains, cfg.limits, cfg.controller)  # log every step
     dt = 1.0 / cfg.rate
     traj = trajectory_from_config(sim.get("trajectory"))
     sources = {}
