@@ -48,12 +48,9 @@ def random_table(flights: int = 4, n: int = 400, seed: int = 0, rate: float = 10
 
 
 def residual_wrench(res, phi: np.ndarray) -> np.ndarray:
-    """A vehicle file's learned wrench (N, 6) for features ``φ`` (N, d) in NumPy (``qr.residual.Residual``:
+    """A vehicle file's learned wrench (N, 6) for features ``φ`` (N, d) in NumPy (:func:`qr.residual.forward`:
     scaled inputs, tanh/relu hidden layers, scaled outputs): the reference the compiled plant, its torch
     twin and the logged MLflow model are tested against."""
-    z = (np.atleast_2d(phi) - res.input_mean) / res.input_scale
-    for k, (W, b) in enumerate(zip(res.weights, res.biases)):
-        z = z @ W.T + b
-        if k < len(res.weights) - 1:
-            z = np.tanh(z) if res.activation == "tanh" else np.maximum(z, 0.0)
-    return z * res.output_scale
+    from qr.residual import forward
+
+    return forward(res, phi)
