@@ -26,6 +26,7 @@ rule all:
         rules.learn_best.output,
         rules.diagnosis_summary.output,
         rules.evaluation_summary.output,
+        rules.generalization_summary.output,
         rules.replay_summary.output,
         rules.overview.output,
         expand(rules.export.output, target=EXPORT_TARGETS),

@@ -136,18 +136,20 @@ def full_starts(w: Windows, H: int) -> np.ndarray:
     return i[i + H < len(w.t)]
 
 
-def split(pieces: list[tuple[str, Windows]], H: int, fraction: float, stride: int) -> tuple[list[Piece], dict]:
-    """Training and validation starts: whole flights (every ``round(1/fraction)``-th flight, at least one)
-    when there are several, else the last ``fraction`` of the lone flight's time (no window crosses)."""
+def split(pieces: list[tuple[str, Windows]], H: int, fraction: float, stride: int,
+          validation: list[str] | None = None, by: str = "flight") -> tuple[list[Piece], dict]:
+    """Training and validation starts: whole flights (``validation``, chosen by :func:`qr.holdout.validation`
+    — ``by`` says how; default every ``round(1/fraction)``-th flight, at least one) when there are several,
+    else the last ``fraction`` of the lone flight's time (no window crosses)."""
     flights = list(dict.fromkeys(f for f, _ in pieces))
     out = []
     if len(flights) > 1:
         k = max(2, int(round(1 / fraction)))
-        val = set(flights[k - 1::k] or flights[-1:])
+        val = set(validation) if validation else set(flights[k - 1::k] or flights[-1:])
         for f, w in pieces:
             s = full_starts(w, H)
             out.append(Piece(f, w, np.zeros(0, int) if f in val else s[::stride], s if f in val else np.zeros(0, int)))
-        return out, {"by": "flight", "training": [f for f in flights if f not in val],
+        return out, {"by": by if validation else "flight", "training": [f for f in flights if f not in val],
                      "validation": [f for f in flights if f in val]}
     t0 = min(w.t[0] for _, w in pieces)
     t1 = max(w.t[-1] for _, w in pieces)

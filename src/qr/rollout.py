@@ -18,7 +18,7 @@ nanodrone-sysid-benchmark's physics baseline).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numba as nb
@@ -29,6 +29,7 @@ from .allowed import check_fields, check_known, setting
 from .conventions import CHECKS
 from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
+from .holdout import SplitConfig
 from .sim.plant import (N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv,
                         true_params)
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
@@ -301,8 +302,16 @@ class EvaluateConfig:
     trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (as qr diagnose's)
     # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
     skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
+    # the held-out protocol's split of a set's flights (qr.holdout: repeat | trajectory | speed)
+    split: SplitConfig = field(default_factory=SplitConfig)
+    # the flights the scored models were trained on: each window is checked against their envelope
+    # (speed, tilt, rotor speeds, body rates; qr.envelope); empty: no check
+    trained_on: list[str] = field(default_factory=list)
 
     def __post_init__(self):
+        if isinstance(self.split, dict):
+            self.split = SplitConfig.from_dict(self.split)
+        self.trained_on = [str(f) for f in (self.trained_on or [])]
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
 
     @classmethod

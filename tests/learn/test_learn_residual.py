@@ -130,6 +130,35 @@ def test_training_reads_only_its_flights_and_repeats_bit_for_bit(flights, tmp_pa
     assert not np.array_equal(one["W0"], three["W0"])
 
 
+def test_under_a_trajectory_split_validation_is_a_whole_training_trajectory_and_scored_flights_stay_shut(
+        flights, tmp_path):
+    """``evaluate.split.kind=trajectory``: the held-out trajectory's flight (poisoned) is never opened; early
+    stopping runs on a whole trajectory of the training side (c, the figure-8 at time scale 0.5), never on
+    a scored flight, and no fitting flight flies it (qr.holdout.validation)."""
+    import shutil
+
+    import yaml
+
+    from qr.stages.learn_residual import train_held_out
+
+    for n in ("a", "b", "c"):
+        shutil.copy(flights / n / "flight.csv", tmp_path / f"{n}.csv")
+    (tmp_path / "d.csv").write_text("t,px\nnot,a flight\n")  # the scored flight (a circle), poisoned
+    data = tmp_path / "data.yaml"
+    data.write_text(yaml.safe_dump({"root": ".", "sets": {"s": {"vehicle": "v", "flights": list("abcd"), "flown": [
+        {"flights": ["a", "b"], "trajectory": "figure8", "time_scale": 1.0},
+        {"flights": ["c"], "trajectory": "figure8", "time_scale": 0.5},
+        {"flights": ["d"], "trajectory": "circle", "time_scale": 1.0}]}}}))
+    paths = [str(tmp_path / f"{n}.csv") for n in "abcd"]
+    split = ["evaluate.split.kind=trajectory", "evaluate.split.trajectories=[circle]", f"evaluate.split.data={data}",
+             "evaluate.split.set=s"]
+    doc = train_held_out(paths, flights / "a" / "vehicle.yaml", tmp_path / "out", [*TINY, *split], track=False,
+                         log=lambda m: None)
+    fl = doc["flights"]
+    assert fl["training"] == paths[:2] and fl["validation"] == [paths[2]] and fl["validation_by"] == "trajectory"
+    assert "whole trajectories no training flight flies" in (tmp_path / "out" / "report.md").read_text()
+
+
 def test_fine_tuning_starts_from_the_vehicles_residual(flights, trained, tmp_path):
     """A vehicle that already carries a residual is fine-tuned: its architecture is kept (width ignored)
     and training starts from its weights, so the first loss is the carried model's, below the physical

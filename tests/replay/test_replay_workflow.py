@@ -15,15 +15,21 @@ def data_file():
 
 
 def test_the_data_sets_metadata_gives_each_flights_trajectory_and_time_scale():
-    """The time scales are the source READMEs' (brushless: data/eckart.md; payload: its README); the payload's
+    """The time scales are the source READMEs' (brushless: data/eckart.md; payload: its README), read through
+    qr.flightsets (the sets' ``flown:`` groups, the one record of what each flight flew); the payload's
     sideways flights have no trajectory file and are not replayed."""
+    from qr.flightsets import flight_info
     from qr.stages.replay_sets import flight_trajectory, replayed_flights
 
     d = data_file()
     bl, pl = d["sets"]["brushless"], d["sets"]["payload"]
+    assert not any("trajectories" in s for s in d["sets"].values())  # one record: flown:
     assert flight_trajectory(bl, "eckart00") == ("figure8", 1.0) and flight_trajectory(bl, "eckart30") == ("figure8", 0.5)
-    assert flight_trajectory(pl, "eckart26") == ("figure8", 0.7) and flight_trajectory(pl, "eckart45") is None
-    assert flight_trajectory({"flight_info": {"a": {"trajectory": "t", "timescale": 0.8}}}, "a") == ("t", 0.8)
+    assert flight_trajectory(pl, "eckart26") == ("figure8", 0.7) and flight_trajectory(pl, "eckart45") == ("sideways", None)
+    assert flight_trajectory(pl, "eckart26") == (flight_info("payload", "eckart26").trajectory,
+                                                 flight_info("payload", "eckart26").time_scale)
+    own = {"flights": ["a"], "flown": [{"flights": ["a"], "trajectory": "t", "time_scale": 0.8}]}
+    assert flight_trajectory(own, "a") == ("t", 0.8) and flight_trajectory({"flights": ["a"]}, "a") is None
     files = d["trajectory_files"]
     assert replayed_flights(bl, files) == bl["flights"][2::3]  # the rollout's held-out flights
     assert all(flight_trajectory(pl, f) for f in replayed_flights(pl, files))

@@ -32,7 +32,7 @@ def test_two_full_runs_give_identical_tables(clean, faulted):
     # every stage's tables are there (a stage added to `rule all` later is compared too)
     for expected in ("ingest/summary.csv", "filter/summary.csv", "tables/table_4_2.csv", "tables/table_4_3.csv",
                      "tables/table_3_1.csv", "tables/gpr_kernels.csv", "simulation/tracking.csv",
-                     "simulation/stability.csv", "tables/rollout_held_out.csv"):
+                     "simulation/stability.csv", "tables/rollout_held_out.csv", "tables/generalization.csv"):
         assert expected in a
     for name in a:
         assert len(a[name]) > 0, name
@@ -85,3 +85,24 @@ def test_the_held_out_rollout_names_the_vehicle_files_it_compared(clean):
         assert set(doc["labels"].values()) >= {"nominal", "extended", "hybrid"}, doc["labels"]
         for v in doc["vehicles"]:
             assert (clean.parent / v).is_file() or Path(v).is_file(), v  # not in a temporary folder
+
+
+def test_the_generalization_table_holds_the_repeat_split_and_a_fold_that_trained_what_it_scored(clean):
+    """The reduced run's one fold (brushless: trained on time scale 1.0, scored on 0.9) beside the repeat split:
+    the table's exact columns, the fold's residual row, its flights on one side each, its envelope check."""
+    import json
+
+    g = pd.read_csv(clean / "tables" / "generalization.csv")
+    assert list(g.columns) == ["set", "split", "held_out", "model", "p", "v", "R", "w", "coverage90"]
+    assert set(g["split"]) == {"repeat", "speed"} and g["coverage90"].isna().all()
+    speed = g[g["split"] == "speed"]
+    assert "hybrid (rollout-trained)" in set(speed["model"]) and (speed[["p", "v", "R", "w"]] > 0).all().all()
+    fold = clean / "generalization" / "brushless" / "speed-fastest"
+    split = json.loads((fold / "fold.json").read_text())["split"]
+    assert [p.split("/")[-1] for p in split["train"]] == ["eckart00.parquet"]
+    assert [p.split("/")[-1] for p in split["test"]] == ["eckart06.parquet"]
+    doc = json.loads((fold / "held_out" / "evaluation.json").read_text())
+    assert doc["envelope"]["trained_on"] == split["train"] and doc["flights"] == split["test"]
+    training = json.loads((fold / "residual" / "training.json").read_text())
+    assert not set(training["flights"]["training"] + training["flights"]["validation"]) & set(split["test"])
+    assert training["config"]["evaluate"]["split"]["kind"] == "speed"  # the split it was trained under

@@ -130,6 +130,35 @@ def test_the_tables_are_narrow():
     assert table.shape[1] <= 6 and max(len(str(c)) for c in table.to_numpy().ravel()) <= 40
 
 
+def _generalization_csv(path):
+    rows = [{"set": "brushless", "split": "repeat", "held_out": "every third flight (same trajectories)"},
+            {"set": "brushless", "split": "trajectory", "held_out": "time scale 0.5"},
+            {"set": "brushless", "split": "trajectory", "held_out": "time scales 1, 0.9, 0.8, 0.7, 0.6, 0.5, each in "
+                                                                    "turn (6 folds, pooled)"},
+            {"set": "brushless", "split": "speed", "held_out": "time scales 0.6, 0.5 (faster), trained on 1, 0.9, 0.8, 0.7"},
+            {"set": "payload", "split": "trajectory", "held_out": "sideways"}]
+    pd.DataFrame([{**r, "model": m, "p": 1.2345, "v": 0.98, "R": 1.1, "w": 2.2, "coverage90": float("nan")}
+                  for r in rows for m in ("nominal", "physical (refined)", "hybrid (rollout-trained)")]).to_csv(
+        path, index=False)
+
+
+def test_the_overview_says_what_was_held_out_and_shows_the_generalization_table(tmp_path):
+    from qr.report.overview import held_out_line
+
+    _generalization_csv(tmp_path / "g.csv")
+    g = pd.read_csv(tmp_path / "g.csv")
+    line = held_out_line(g)
+    # each set's held-out splits, named once, the pooled group standing for its folds; the repeat split said apart
+    assert line.startswith("Held out, never trained on — brushless: time scales 1, 0.9, 0.8, 0.7, 0.6, 0.5, each "
+                           "in turn (6 folds, pooled); time scales 0.6, 0.5 (faster)")
+    assert "time scale 0.5;" not in line and "payload: sideways." in line and "measures interpolation" in line
+    pd.DataFrame([_row("brushless", "none", [0.007] * 3, [0.002] * 3)]).to_csv(tmp_path / "d.csv", index=False)
+    write_overview(tmp_path / "o.html", tmp_path / "d.csv", generalization_csv=tmp_path / "g.csv")
+    text = (tmp_path / "o.html").read_text()
+    assert text.index("<h2>Generalisation") < text.index("<caption>Rollout on flights the models were not trained on")
+    assert "<th>coverage90</th>" not in text and "no uncertainty bands yet" in text and "<td>1.234</td>" in text
+
+
 PROBE = """<script>window.addEventListener('load', () => { const w = document.documentElement.clientWidth;
 const wide = Array.from(document.querySelectorAll('body *')).filter(e => e.getBoundingClientRect().right > w + 0.5
   || e.scrollWidth > e.clientWidth + 1 && getComputedStyle(e).overflowX !== 'visible').map(e => e.tagName);
@@ -151,7 +180,9 @@ def test_nothing_scrolls_sideways_in_a_1400_px_browser(tmp_path):
     cols = {f"{q}@50": 0.123456 for q in "pvRw"} | {f"{q} / rate_frozen": 1.23456 for q in "pvRw"}
     pd.DataFrame([{"set": "brushless", "held-out flights": 10, "model": m, "horizon (s)": 0.5, **cols}
                   for m in ("hold", "rate_frozen", "nominal", "extended", "hybrid")]).to_csv(tmp_path / "r.csv", index=False)
-    write_overview(tmp_path / "o.html", tmp_path / "d.csv", tmp_path / "r.csv")
+    _generalization_csv(tmp_path / "g.csv")
+    write_overview(tmp_path / "o.html", tmp_path / "d.csv", tmp_path / "r.csv", generalization_csv=tmp_path / "g.csv")
+    assert "Generalisation" in (tmp_path / "o.html").read_text()
     page = tmp_path / "probe.html"
     page.write_text((tmp_path / "o.html").read_text().replace("</body>", PROBE + "</body>"))
     dom = subprocess.run(["chromium", "--headless", "--no-sandbox", "--disable-gpu", "--window-size=1400,900",

@@ -1,6 +1,7 @@
 # Shared definitions: configuration, data sets, path helpers.
 import os
 import re
+import sys
 from pathlib import Path
 
 import yaml
@@ -45,9 +46,12 @@ if _unknown:
                         "--config sets=[...] with the data set's names, or leave `sets` out to run them all")
 SETS = {name: dict(DATA["sets"][name]) for name in (config.get("sets") or DATA["sets"])
         if name not in (config.get("skip_sets") or [])}
-if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): the first N flights of each set
-    for _s in SETS.values():
-        _s["flights"] = _s["flights"][: int(config["flights_per_set"])]
+if config.get("flights_per_set"):  # a reduced run (conf/workflow_ci.yaml): N flights of each set that differ
+    from qr.flightsets import parse_flown, spread  # (in the set's order; without `flown:` the first N)
+
+    for _name, _s in SETS.items():
+        _info = parse_flown(_s["flown"], _s["flights"], f"{DATA_FILE}: sets.{_name}.flown") if _s.get("flown") else None
+        _s["flights"] = spread(_s["flights"], _info, int(config["flights_per_set"]))
 
 
 def raw_log(set_name, flight):
@@ -166,3 +170,39 @@ def overview_figures():
             ("results/figures/sim_rmse.png", "Simulation: position RMSE per residual model and controller (log "
              "scale; hatched: diverged). Lower is better; the oracle, which knows the true disturbance, is the floor.")]
     return out
+
+
+# ---- the held-out splits (rules evaluate_held_out, generalization_fold: workflow/rules/evaluate.smk) ----
+
+def repeat_split(set_name):
+    """The repeat split of a set, with what its flights fly where the data set says (its report then says
+    whether the held-out flights repeat training trajectories)."""
+    described = bool(SETS[set_name].get("flown"))
+    return {"kind": "repeat", "data": str(DATA_FILE) if described else "", "set": set_name if described else ""}
+
+
+GEN = config.get("generalization", {})
+
+
+def _generalization_folds():
+    """Set -> fold name -> qr.holdout.Fold; and the folds the run's flights cannot make (a subset of a set),
+    left out and said so (in the log and under the table)."""
+    from qr.errors import QrInputError
+    from qr.holdout import folds
+
+    out, skipped = {}, []
+    for name, specs in (GEN.get("sets") or {}).items():
+        if name not in SETS or not specs:
+            continue
+        left = []
+        try:
+            out[name] = {f.name: f for f in folds(specs, SETS[name]["flights"], str(DATA_FILE), name, skipped=left)}
+        except QrInputError as e:
+            raise WorkflowError(f"{DATA_FILE}: workflow.generalization.sets.{name}: {e}") from None
+        for fold, why in left:
+            print(f"generalization: {name}/{fold} left out: {why}", file=sys.stderr)
+            skipped.append(f"{name}/{fold}: {why}")
+    return out, skipped
+
+
+GEN_FOLDS, GEN_SKIPPED = _generalization_folds()

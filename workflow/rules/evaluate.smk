@@ -26,6 +26,7 @@ rule evaluate_held_out:
                                                  extra_overrides=EVAL.get("overrides", [])),
         single=lambda wc: diagnosis_overrides(wc.set, each=True, extra=EVAL.get("experiments", []),
                                               extra_overrides=EVAL.get("overrides", [])),
+        split=lambda wc: repeat_split(wc.set),
     conda:
         "../envs/qr.yaml"
     script:
@@ -49,6 +50,8 @@ rule evaluate_learned:
     benchmark:
         "results/benchmarks/evaluate/{set}_learned.tsv"
     priority: CHAIN_PRIORITY  # learn.smk
+    params:
+        split=lambda wc: repeat_split(wc.set),
     conda:
         "../envs/qr.yaml"
     script:
@@ -71,3 +74,57 @@ rule evaluation_summary:
         "../envs/qr.yaml"
     script:
         "../scripts/evaluation_summary.py"
+
+
+# Generalisation (docs/workflow.md): per set, the held-out splits of the data set's `workflow.generalization.sets`
+# (whole trajectory types or time scales held out, or the faster flights: conf/data/*.yaml), each a fold that
+# trains what it scores (rule generalization_fold: the training diagnosis with the refinement, the rollout of
+# its models, and where `hybrid: true` a residual trained through the rollout); one table beside the repeat
+# split (every third flight: the same trajectories) of the rules above.
+GEN_DIRS = [f"results/generalization/{s}/{f}" for s, fs in GEN_FOLDS.items() for f in fs]
+
+
+rule generalization_fold:
+    input:
+        flights=lambda wc: flights_of(wc.set, INGESTED),
+        nis=lambda wc: flights_of(wc.set, FILTERED["nis"]),
+        crossfit=lambda wc: flights_of(wc.set, FILTERED["crossfit"]),
+        vehicle=diagnosis_vehicle,
+    output:
+        directory("results/generalization/{set}/{fold}"),
+    log:
+        "results/logs/evaluate/generalization_{set}_{fold}.log",
+    benchmark:
+        "results/benchmarks/evaluate/generalization_{set}_{fold}.tsv"
+    params:
+        fold=lambda wc: GEN_FOLDS[wc.set][wc.fold].to_dict(),
+        overrides=lambda wc: diagnosis_overrides(wc.set, extra=EVAL.get("experiments", []),
+                                                 extra_overrides=EVAL.get("overrides", [])),
+        single=lambda wc: diagnosis_overrides(wc.set, each=True, extra=EVAL.get("experiments", []),
+                                              extra_overrides=EVAL.get("overrides", [])),
+        residual=["learn.keep_remainder=false", *LEARN.get("residual", []), *GEN.get("residual", [])],
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/generalization_fold.py"
+
+
+rule generalization_summary:
+    input:
+        folds=GEN_DIRS,
+        repeat=expand(rules.evaluate_held_out.output.evaluation, set=list(SETS)),
+        learned=expand(rules.evaluate_learned.output[0], set=list(SETS)),
+    output:
+        table="results/tables/generalization.csv",
+    log:
+        "results/logs/evaluate/generalization.log",
+    benchmark:
+        "results/benchmarks/evaluate/generalization.tsv"
+    params:
+        names=list(SETS),
+        fold_sets=[s for s, fs in GEN_FOLDS.items() for _ in fs],
+        skipped=GEN_SKIPPED,
+    conda:
+        "../envs/qr.yaml"
+    script:
+        "../scripts/generalization_summary.py"

@@ -1,5 +1,5 @@
 # Replay (docs/spec/replay.md, docs/replay.md): each set whose flights name their controller and trajectory
-# (conf/data/: `controller`, `trajectories`, `trajectory_files`) replays its held-out flights (the rollout's:
+# (conf/data/: `controller`, `flown`, `trajectory_files`) replays its held-out flights (the rollout's repeat split:
 # every third) under that controller with every model the workflow writes for the set: the nominal file and the
 # held-out rollout's extended, refined and hybrid models (rule evaluate_held_out) and the rollout-trained
 # residuals (rule learn_residual; the carry-to set's carried network too).  From the raw logs: their motor

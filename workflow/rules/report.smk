@@ -8,6 +8,7 @@ rule overview:
     input:
         diagnosis=rules.diagnosis_summary.output.table,
         rollout=rules.evaluation_summary.output.table,
+        generalization=rules.generalization_summary.output.table,
         replay=rules.replay_summary.output.table,
         thesis=[f"results/tables/{t}.csv" for t in LEARN_TABLES],
         sets=expand(rules.diagnose_set.output[0], set=list(SETS)),

@@ -2,6 +2,7 @@
 import sys
 from pathlib import Path
 
+from qr.holdout import SplitConfig
 from qr.stages.evaluate import evaluate_learned
 
 carried = [Path(snakemake.input.carried) / "hybrid_vehicle.yaml"] if snakemake.input.carried else []
@@ -11,4 +12,5 @@ with open(snakemake.log[0], "w") as log:
                      [*carried, Path(snakemake.input.residual) / "hybrid_vehicle.yaml"],
                      ["hybrid (rollout-trained, carried over)", "hybrid (rollout-trained, fine-tuned)"] if carried
                      else ["hybrid (rollout-trained)"], snakemake.output[0],
-                     track=f"learned:{snakemake.wildcards.set}", estimates=snakemake.input.crossfit)
+                     track=f"learned:{snakemake.wildcards.set}", estimates=snakemake.input.crossfit,
+                     split=SplitConfig.from_dict(snakemake.params.split))

@@ -8,4 +8,4 @@ with open(snakemake.log[0], "w") as log:
     write_overview(snakemake.output[0], snakemake.input.diagnosis, snakemake.input.rollout,
                    dict(zip(snakemake.params.thesis, snakemake.input.thesis)),
                    [tuple(f) for f in snakemake.params.figures], snakemake.output.fragment,
-                   replay_csv=snakemake.input.replay)
+                   generalization_csv=snakemake.input.generalization, replay_csv=snakemake.input.replay)

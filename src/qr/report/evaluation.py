@@ -101,13 +101,58 @@ def per_flight_table(doc: dict) -> list[str]:
     return lines
 
 
+def _pct(x: float | None) -> str:
+    return "–" if x is None else f"{100 * x:.3g} %"
+
+
+def split_line(doc: dict) -> list[str]:
+    """What the held-out protocol held out (``evaluation.json``'s ``split``), one line; none without it."""
+    sp = doc.get("split")
+    if not sp:
+        return []
+    kind = {"repeat": "the scored flights repeat the training flights' trajectories where the set flies each "
+                      "several times: interpolation",
+            "trajectory": "whole trajectories never trained on", "speed": "faster flights than any trained on: "
+                                                                            "extrapolation"}[sp["kind"]]
+    return [f"Held out (`evaluate.split.kind={sp['kind']}`): {sp['held_out']}; {len(sp['test'])} flight(s) scored, "
+            f"{len(sp['train'])} trained on ({kind}).", ""]
+
+
+def envelope_section(doc: dict) -> list[str]:
+    """Markdown: the windows that leave the training flights' envelope (``evaluation.json``'s ``envelope``)."""
+    from ..envelope import QUANTITIES, WORDS
+
+    env = doc.get("envelope")
+    if not env:
+        return []
+    lim, n = env["limits"], len(env["trained_on"])
+    by = env["share_outside_by"]
+    L = ["## Outside the training envelope", "",
+         f"{env['outside']} of {env['windows']} windows ({_pct(env['share_outside'])}) leave the envelope of the "
+         f"{n} training flight{'s' * (n > 1)} (a state over the window or an input beyond anything they did): "
+         + ", ".join(f"{WORDS[q]} {_pct(by[q])}" for q in QUANTITIES)
+         + (". There the models extrapolate." if env["outside"] else "."), "",
+         f"The envelope: speed ≤ {lim['speed_max']:.3g} m/s, tilt ≤ {lim['tilt_max']:.3g} rad, rotor speeds "
+         + ", ".join(f"{a:.5g}–{b:.5g}" for a, b in zip(lim["rotor_min"], lim["rotor_max"]))
+         + ", body rates " + ", ".join(f"{a:.3g}…{b:.3g}" for a, b in zip(lim["rate_min"], lim["rate_max"]))
+         + " rad/s (x, y, z).", ""]
+    L += ["| flight | windows | outside | " + " | ".join(WORDS[q] for q in QUANTITIES) + " | starts outside (s) |",
+          "|---|---:|---:|" + "---:|" * len(QUANTITIES) + "---|"]
+    for f, o in env["per_flight"].items():
+        spans = o["outside_spans_s"]
+        where = ", ".join(f"{a:.2f}–{b:.2f}" for a, b in spans[:4]) + (f" (+{len(spans) - 4})" if len(spans) > 4 else "")
+        L.append(f"| {Path(f).name} | {o['windows']} | {_pct(o['share_outside'])} | "
+                 + " | ".join(_pct(o["share_outside_by"][q]) for q in QUANTITIES) + f" | {where or '–'} |")
+    return L + [""]
+
+
 def report(doc: dict, figure: str | None) -> str:
     """``report.md``: ``figure`` is the MAE figure's path relative to the report (None: no figure)."""
     H, n = doc["horizon"], len(doc["flights"])
     lo, hi = doc["dt_range"]
     growth, hs = growth_table(doc)
     L = [f"# Rollout evaluation: {len(doc['models']) - len(REFERENCES)} model(s) on {n} flight{'s' * (n > 1)}", "",
-         headline(doc), "",
+         headline(doc), "", *split_line(doc),
          f"## At the horizon (h = {H}, {H * doc['dt']:.2f} s ahead)", "",
          f"Mean absolute error at h = {H} and, in brackets, its ratio to `{BASELINE}` (the nominal thrust along "
          "body z, no drag, the body rate held: the public nanodrone-sysid-benchmark's physics baseline); `hold` "
@@ -124,6 +169,7 @@ def report(doc: dict, figure: str | None) -> str:
         scored = [k for k in doc["models"] if k not in REFERENCES]
         L += ["## Per flight", "", f"Ratio to `{BASELINE}` at h = {H}, {' / '.join(NAMES[q] for q in QUANTITIES)}, "
               f"per model ({', '.join(labels(doc)[k] for k in scored)}):", "", *per_flight_table(doc), ""]
+    L += envelope_section(doc)
     L += ["For comparison, the benchmark's published h = 50 figures on its own held-out Crazyflie flights "
           "(other flights, so only the orders of magnitude compare):", ""]
     L += [f"- {k}: " + ", ".join(f"{NAMES[q]} {v} {UNITS[q]}" for q, v in d.items()) for k, d in PUBLISHED_H50.items()]

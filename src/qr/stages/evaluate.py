@@ -51,7 +51,8 @@ def models_of(vehicles: list, names: list[str]) -> dict:
 
 def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, log=None,
                    figures: bool = True, reports: list | None = None, track: str | None = None,
-                   estimates: list | None = None, labels: list[str] | None = None) -> dict:
+                   estimates: list | None = None, labels: list[str] | None = None, trained_on: dict | None = None,
+                   split=None) -> dict:
     """Evaluate ``vehicles`` on ``flights``; write ``out`` (checked before any work).
 
     ``labels``: the name each vehicle's model has in the report, the figure and the tracked metrics
@@ -61,10 +62,19 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     of tuning again, as ``qr diagnose`` does).  ``track``: the name of an MLflow run (experiment
     ``qr-evaluate``) to log it as (none: not tracked).  ``estimates``: the filter stage's cross-fit file
     of each flight (with ``reports``): a segment's estimate is read from it where it matches (its
-    position, velocity, attitude and rate do not depend on the rotor filter's matching)."""
+    position, velocity, attitude and rate do not depend on the rotor filter's matching).
+
+    ``trained_on``: the flights the models were trained on (``{"flights", "reports", "estimates"}``, the
+    latter two as above; default ``evaluate.trained_on``): every window is checked against their envelope
+    (:mod:`qr.envelope`; ``evaluation.json``'s block ``envelope``).  ``split``: the held-out protocol's
+    :class:`qr.holdout.Assignment` (``evaluation.json``'s block ``split``).  Without it, a trajectory or
+    speed ``evaluate.split`` selects the flights to score among ``flights`` (the held-out mode); the others
+    are the training side, whose envelope the windows are checked against (unless ``evaluate.trained_on``
+    names the training flights)."""
     from ..outputs import check_out_dir
 
-    out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
+    given = [str(f) for f in (trained_on or {}).get("flights", [])]
+    out = check_out_dir(out, inputs=[*flights, *vehicles, *given], force=force, expected=OUTPUTS)
     from ..flight import read_flight
     from ..vehicle import load_vehicle
 
@@ -84,17 +94,39 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     filter_cfg = to_dict(cfg.filter)
     resolve_filter(filter_cfg)
     models = models_of(vehs, names)
-    per_flight, steps = {}, []
+    if split is None and ecfg.split.kind != "repeat":
+        # the held-out mode: the flights the split scores are evaluated, the others are the training side
+        from ..holdout import assign
+
+        split = assign([str(f) for f in flights], ecfg.split)
+        keep = [k for k, f in enumerate(flights) if str(f) in split.test]
+        pick = lambda xs: [xs[k] for k in keep] if xs else xs  # noqa: E731
+        if not trained_on and not ecfg.trained_on:
+            train = [k for k, f in enumerate(flights) if str(f) in split.train]
+            trained_on = {"flights": [str(flights[k]) for k in train],
+                          "reports": [reports[k] for k in train] if reports else None,
+                          "estimates": [estimates[k] for k in train] if estimates else None}
+        flights, measured, reports, estimates = pick(list(flights)), pick(measured), pick(reports), pick(estimates)
+        say(f"evaluate.split: {split.held_out}; scoring {len(flights)} flight(s)")
+    trained_on = trained_on or ({"flights": ecfg.trained_on} if ecfg.trained_on else None)
+    envelope = training_envelope(trained_on, vehs[0], ecfg, filter_cfg, say) if trained_on else None
+    per_flight, steps, outside = {}, [], {}
     for i, (f, m) in enumerate(zip(flights, measured)):
         conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command",
                             vehicles[0])
-        parts = []
+        parts, wins = [], []
         for st, meas, keep in estimated_pieces(f, m, vehs[0], ecfg, filter_cfg, reports[i] if reports else None,
                                                estimates[i] if estimates and reports else None, say):
             steps.append(np.diff(st["t"].to_numpy(float)))
             say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
             parts.append(rollout.score(st, meas, ecfg.horizon, ecfg.max_input_gap, models, keep))
+            if envelope is not None:
+                wins.append(rollout.windows(st, meas, ecfg.horizon, ecfg.max_input_gap, keep))
         per_flight[str(f)] = rollout.pool(parts)
+        if envelope is not None:
+            from ..envelope import check
+
+            outside[str(f)] = check(envelope, wins, ecfg.horizon)
     pooled = rollout.pool(list(per_flight.values()))
     dt = np.concatenate(steps)
     doc = {
@@ -109,6 +141,10 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         "models": {k: rollout.summary(*v) for k, v in pooled.items()},
         "per_flight": {f: {"models": {k: rollout.summary(*v) for k, v in p.items()}} for f, p in per_flight.items()},
     }
+    if split is not None:
+        doc["split"] = split.to_dict()
+    if envelope is not None:
+        doc["envelope"] = envelope_block(envelope, trained_on["flights"], outside)
     from ..report.evaluation import mae_figure, report
 
     with atomic_dir(out, force=force, command="qr evaluate") as tmp:
@@ -123,6 +159,36 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         track_evaluation(track, doc, [*flights, *map(vehicle_file, vehicles)], out)  # (a vehicle by name: its file)
     say(f"wrote {out}/evaluation.json")
     return doc
+
+
+def training_envelope(trained_on: dict, vehicle, ecfg: EvaluateConfig, filter_cfg: dict, say=lambda m: None):
+    """The :class:`qr.envelope.Envelope` of the training flights (``{"flights", "reports", "estimates"}``),
+    from the same windows the protocol scores."""
+    from ..envelope import Envelope
+    from ..flight import read_flight
+
+    flights, reports, stored = trained_on["flights"], trained_on.get("reports"), trained_on.get("estimates")
+    wins = []
+    for i, f in enumerate(flights):
+        for st, meas, keep in estimated_pieces(f, read_flight(f), vehicle, ecfg, filter_cfg,
+                                               reports[i] if reports else None,
+                                               stored[i] if stored and reports else None, say):
+            wins.append(rollout.windows(st, meas, ecfg.horizon, ecfg.max_input_gap, keep))
+    return Envelope.of(wins, ecfg.horizon)
+
+
+def envelope_block(envelope, trained: list, outside: dict) -> dict:
+    """``evaluation.json``'s ``envelope``: the training flights' extremes, and per scored flight and pooled
+    the windows outside them."""
+    from ..envelope import QUANTITIES
+
+    n = sum(o["windows"] for o in outside.values())
+    k = {q: sum(o["share_outside_by"][q] * o["windows"] for o in outside.values() if o["windows"]) for q in QUANTITIES}
+    m = sum(o["outside"] for o in outside.values())
+    return {"trained_on": [str(f) for f in trained], "limits": envelope.to_dict(), "windows": n, "outside": m,
+            "share_outside": m / n if n else None,
+            "share_outside_by": {q: (round(k[q]) / n if n else None) for q in QUANTITIES},
+            "per_flight": outside}
 
 
 def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
@@ -173,18 +239,28 @@ def track_evaluation(name: str, doc: dict, inputs, outdir) -> None:
                 run.artifact(Path(outdir) / p)
 
 
+def held_out(flights, split=None, require: bool = True):
+    """The held-out protocol's :class:`qr.holdout.Assignment` of ``flights`` under ``split`` (a
+    :class:`qr.holdout.SplitConfig`, ``evaluate.split``; default ``repeat``: every third flight)."""
+    from ..holdout import SplitConfig, assign
+
+    return assign([str(f) for f in flights], split or SplitConfig(), require=require)
+
+
 def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
-    """(training, held-out) flights: every third flight held out (the last one of fewer than three)."""
-    flights = list(flights)
-    test = flights[2::3] if len(flights) >= 3 else flights[-1:]
-    return [f for f in flights if f not in test], test
+    """(training, held-out) flights of the repeat split: every third flight held out (the last one of fewer
+    than three)."""
+    a = held_out(flights, require=False)
+    return list(a.train), list(a.test)
 
 
 def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
-                      track: str | None = None, estimates=None) -> dict:
+                      track: str | None = None, estimates=None, split=None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal and the
     extended vehicle on the held-out ones (with ``single_overrides`` instead of ``overrides`` when one
-    flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use)."""
+    flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use).  ``split``: which
+    flights are held out (:func:`held_out`); each scored window is checked against the training flights'
+    envelope (:mod:`qr.envelope`)."""
     import json
 
     from .diagnose import run_diagnosis
@@ -192,7 +268,9 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     if len(flights) < 2:
         raise QrInputError(flights[0] if flights else None, "one flight cannot be held out by flight",
                            "give two flights or more")
-    train, test = held_out_by_flight(flights)
+    flights = [str(f) for f in flights]
+    a = held_out(flights, split)
+    train, test = list(a.train), list(a.test)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     if len(train) == 1 and single_overrides:
         overrides = single_overrides
@@ -205,7 +283,14 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     models_dir.mkdir(exist_ok=True)
     models, labels = held_out_models(vehicle, diag_out, models_dir)
     return run_evaluation(test, models, eval_out, log=lambda m: None, reports=[reports[f] for f in test],
-                          track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels)
+                          track=track, estimates=[stored[f] for f in test] if stored else None, labels=labels,
+                          trained_on=_trained(a, reports, stored), split=a)
+
+
+def _trained(a, reports: dict, stored: dict) -> dict:
+    """The training side of an assignment as :func:`run_evaluation` takes it (its envelope)."""
+    return {"flights": list(a.train), "reports": [reports[f] for f in a.train],
+            "estimates": [stored[f] for f in a.train] if stored else None}
 
 
 HELD_OUT_MODELS = "held_out_models"  # (in the training diagnosis's folder)
@@ -249,18 +334,21 @@ def held_out_models(vehicle, diag_out, out_dir: Path) -> tuple[list[str], list[s
 
 
 def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, track: str | None = None,
-                     estimates=None) -> dict:
-    """``vehicles`` (labelled ``labels``) on the flights the held-out protocol holds out
-    (:func:`held_out_by_flight`), beside the nominal ``vehicle`` and the references: the workflow's
-    rollout-trained residuals, scored on the same flights as :func:`evaluate_held_out`'s models."""
+                     estimates=None, split=None) -> dict:
+    """``vehicles`` (labelled ``labels``) on the flights the held-out protocol holds out under ``split``
+    (:func:`held_out`), beside the nominal ``vehicle`` and the references: the workflow's rollout-trained
+    residuals, scored on the same flights as :func:`evaluate_held_out`'s models."""
     import json
 
-    _, test = held_out_by_flight(flights)
+    flights = [str(f) for f in flights]
+    a = held_out(flights, split)
+    test = list(a.test)
     reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
     stored = dict(zip(flights, estimates)) if estimates else {}
     return run_evaluation(test, [vehicle, *vehicles], eval_out, log=lambda m: None,
                           reports=[reports[f] for f in test], track=track,
-                          estimates=[stored[f] for f in test] if stored else None, labels=["nominal", *labels])
+                          estimates=[stored[f] for f in test] if stored else None, labels=["nominal", *labels],
+                          trained_on=_trained(a, reports, stored), split=a)
 
 
 def summary_table(eval_dirs: dict, table) -> pd.DataFrame:

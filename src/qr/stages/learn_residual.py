@@ -43,15 +43,20 @@ def compose(overrides=()):
 
 def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=None, cfg=None,
                  reports: list | None = None, estimates: list | None = None, track: bool = True,
-                 run_name: str = "residual", parent_id: str | None = None) -> dict:
+                 run_name: str = "residual", parent_id: str | None = None, split=None) -> dict:
     """Train on ``flights`` on top of ``vehicle``; write ``out`` (checked before any work); the
     training.json document.  ``cfg``: the composed tree (else composed from ``overrides``);
     ``reports`` / ``estimates``: the filter stage's files of each flight (as :func:`qr.stages.evaluate.
-    run_evaluation` takes them)."""
+    run_evaluation` takes them).  ``split``: a :class:`qr.holdout.SplitConfig` instead of the tree's
+    ``evaluate.split``: the validation flights are drawn by it (:func:`qr.holdout.validation`), and a
+    flight it scores is refused."""
     from ..outputs import check_out_dir
 
     flights = [str(f) for f in flights]
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
+    from dataclasses import asdict, replace
+
+    from .. import holdout
     from .. import residual_fit as rf
     from ..config import to_dict
     from ..estimation.settings import resolve as resolve_filter
@@ -71,6 +76,15 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     if len(set(flights)) < len(flights):
         dup = next(f for f in flights if flights.count(f) > 1)
         raise QrInputError(dup, "the same flight is given twice", "give each flight once")
+    if split is not None:
+        ecfg = replace(ecfg, split=split)
+        plain["evaluate"]["split"] = asdict(split)  # training.json says the split it was trained under
+    # what the flights fly (evaluate.split: trajectory or speed); a flight the split scores never trains
+    infos = ecfg.split.infos(flights)
+    scored = [f for f in flights if infos and holdout.named(infos[f], ecfg.split)]
+    if scored:
+        raise QrInputError(scored[0], f"evaluate.split scores this flight ({infos[scored[0]].describe()}): "
+                           "training on it would score a trained flight", "leave it out of the training flights")
     veh = load_vehicle(vehicle)
     if not rcfg.keep_remainder and "torque_remainder" in veh.raw:
         raw = veh.to_dict()
@@ -84,7 +98,8 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
                                                estimates[i] if estimates and reports else None, say):
             pieces.append((f, windows(st, meas, rcfg.horizon, ecfg.max_input_gap, keep)))
     estimate_s = time.perf_counter() - t0
-    parts, split = rf.split(pieces, rcfg.horizon, rcfg.validation, rcfg.stride)
+    _, val, by = holdout.validation(flights, ecfg.split, rcfg.validation, infos)
+    parts, split = rf.split(pieces, rcfg.horizon, rcfg.validation, rcfg.stride, val, by)
     say(split_sentence(split))
     curve = []
     trained = rf.train(rcfg, veh, parts, seed, say, on_epoch=curve.append)
@@ -108,20 +123,28 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
 
 
 def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = None,
-                   estimates: list | None = None, **kwargs) -> dict:
-    """The held-out protocol's training (the workflow's): every third flight is held out as ``qr evaluate``'s
-    held-out rule holds it out (:func:`qr.stages.evaluate.held_out_by_flight`) and never opened; the others
-    train (``reports`` / ``estimates``: the filter stage's files, or reports already read, of every flight
-    in the same order)."""
+                   estimates: list | None = None, split=None, **kwargs) -> dict:
+    """The held-out protocol's training (the workflow's): the flights ``split`` scores (a
+    :class:`qr.holdout.SplitConfig`; default the tree's ``evaluate.split``, itself default ``repeat``:
+    every third flight) are held out as ``qr evaluate``'s held-out protocol holds them out
+    (:func:`qr.stages.evaluate.held_out`) and never opened; the others train, their validation flights drawn
+    by the same split (``reports`` / ``estimates``: the filter stage's files, or reports already read, of
+    every flight in the same order)."""
     import json
 
-    from .evaluate import held_out_by_flight
+    from .evaluate import held_out
 
     flights = [str(f) for f in flights]
-    train, _ = held_out_by_flight(flights)
+    if split is None:
+        from ..config import to_dict
+        from ..rollout import EvaluateConfig
+
+        split = EvaluateConfig.from_dict(to_dict(compose(overrides).evaluate)).split
+    train = list(held_out(flights, split).train)
     pick = lambda files: [files[flights.index(f)] for f in train] if files else None  # noqa: E731
     reports = [json.loads(Path(r).read_text()) if isinstance(r, (str, Path)) else r for r in pick(reports) or []]
-    return run_residual(train, vehicle, out, overrides, reports=reports or None, estimates=pick(estimates), **kwargs)
+    return run_residual(train, vehicle, out, overrides, reports=reports or None, estimates=pick(estimates),
+                        split=split, **kwargs)
 
 
 def carry_residual(extended_vehicle, hybrid_vehicle, out) -> None:
@@ -272,7 +295,8 @@ def split_sentence(split: dict) -> str:
     n = len(split["training"]) + len(split["validation"])
     return (f"{n} flights given: {len(split['training'])} train{'s' if len(split['training']) == 1 else ''} "
             f"({_listed(split['training'])}), {len(split['validation'])} validate{'s' if len(split['validation']) == 1 else ''} "
-            f"({_listed(split['validation'])}: early stopping, never trained on)")
+            f"({_listed(split['validation'])}: early stopping, never trained on"
+            + ("; whole trajectories no training flight flies" if split["by"] == "trajectory" else "") + ")")
 
 
 def kept_sentence(initial: float, epochs: list[float], fine_tuned: bool) -> str:
@@ -319,7 +343,9 @@ def report(doc: dict) -> str:
     split = {"by": fl["validation_by"], "training": fl["training"], "validation": fl["validation"],
              **({"validation_from_s": fl["validation_from_s"]} if fl["validation_by"] == "time" else {})}
     where = (f"{len(fl['validation'])} whole validation flight(s) ({_listed(fl['validation'])})"
-             if fl["validation_by"] == "flight" else f"the flight's time from {fl['validation_from_s']:.2f} s on")
+             + (", whole trajectories no training flight flies" if fl["validation_by"] == "trajectory" else "")
+             if fl["validation_by"] in ("flight", "trajectory") else
+             f"the flight's time from {fl['validation_from_s']:.2f} s on")
     fine_tuned = doc["network"]["start"].startswith("fine")
     losses = [e["val_loss"] for e in doc["loss_per_epoch"]]
     best = min([doc["initial_loss"]["val_loss"]] + losses)

@@ -12,32 +12,39 @@ from pathlib import Path
 import pandas as pd
 
 
-def flight_trajectory(set_cfg: dict, flight: str) -> tuple[str, float] | None:
-    """(trajectory name, time scale) a flight flew, from the data set's file, or None.  Read tolerantly: the
-    set's ``trajectories`` groups (``{trajectory, timescale, flights}``), or a per-flight mapping
-    (``flight_info`` / ``flights_info``: ``{flight: {trajectory, timescale}}``)."""
-    for group in set_cfg.get("trajectories") or []:
-        if flight in (group.get("flights") or []) and group.get("trajectory"):
-            return str(group["trajectory"]), float(group.get("timescale", 1.0))
-    for key in ("flight_info", "flights_info"):
-        info = (set_cfg.get(key) or {}).get(flight) or {}
-        if info.get("trajectory"):
-            return str(info["trajectory"]), float(info.get("timescale", 1.0))
-    return None
+def flight_trajectory(set_cfg: dict, flight: str) -> tuple[str, float | None] | None:
+    """(trajectory name, time scale) a flight flew, from the set's ``flown:`` groups (:mod:`qr.flightsets`, the
+    one record of what each flight flies; the time scale None where the source gives none), or None where the
+    set does not describe the flight."""
+    from ..flightsets import parse_flown
+
+    if not set_cfg.get("flown"):
+        return None
+    info = parse_flown(set_cfg["flown"], list(set_cfg.get("flights") or [])).get(flight)
+    return None if info is None else (info.trajectory, info.time_scale)
+
+
+def _replayable(tr, trajectory_files: dict) -> bool:
+    """A flight can be replayed: its trajectory has a file and its time scale is known."""
+    return tr is not None and tr[0] in (trajectory_files or {}) and tr[1] is not None
 
 
 def replayed_flights(set_cfg: dict, trajectory_files: dict) -> list[str]:
-    """The flights the workflow replays: held out by the rollout's rule, with a trajectory file."""
+    """The flights the workflow replays: held out by the rollout's rule (the repeat split: the models the
+    workflow writes for the set are trained on the others), with a trajectory file and a time scale."""
     from .evaluate import held_out_by_flight
 
     _, held_out = held_out_by_flight(set_cfg["flights"])
-    return [f for f in held_out if (tr := flight_trajectory(set_cfg, f)) and tr[0] in (trajectory_files or {})]
+    return [f for f in held_out if _replayable(flight_trajectory(set_cfg, f), trajectory_files)]
 
 
 def overrides_of(set_cfg: dict, flights: list[str], trajectory_files: dict) -> list[str]:
     """qr replay's overrides for a set's flights: the trajectory, a time scale per flight, the controller's
     documented parameters."""
     trs = [flight_trajectory(set_cfg, f) for f in flights]
+    bad = [f for f, t in zip(flights, trs) if not _replayable(t, trajectory_files)]
+    if bad:
+        raise ValueError(f"flight {bad[0]}: no trajectory file or no time scale in the set's flown: groups")
     names = {t[0] for t in trs}
     if len(names) != 1:
         raise ValueError(f"the replayed flights fly {sorted(names)}: one trajectory per replay")

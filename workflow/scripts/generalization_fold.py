@@ -1,0 +1,13 @@
+"""Snakemake rule `generalization_fold`: one held-out split of a set, trained and scored."""
+import sys
+
+from qr.holdout import Fold
+from qr.stages.generalize import run_fold
+
+with open(snakemake.log[0], "w") as log:
+    sys.stderr = log
+    run_fold(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle, snakemake.output[0],
+             Fold.from_dict(snakemake.params.fold), snakemake.params.overrides, snakemake.params.single,
+             snakemake.params.residual, estimates=snakemake.input.crossfit,
+             track=f"fold:{snakemake.wildcards.set}/{snakemake.wildcards.fold}",
+             log=lambda m: print(m, file=log, flush=True))
