@@ -221,3 +221,30 @@ def test_every_figure_axis_has_its_unit(written):
                 else:
                     assert info["categorical"] or info["shared_labelled"], (f["file"], which, ax)
     assert checked > 60
+
+
+def test_the_refinement_table_states_each_row_s_unit():
+    """``diagnose.refine=rollout``'s table in report.md: each row's unit, the catalog's for a named effect's
+    parameter (N s/m for linear_drag's kx, m for the CG), kg m² for J and the rotors' inertia, "–" for a gain
+    or ratio; each stated unit passes :func:`is_unit`."""
+    from qr.diagnose.refine import report_lines
+
+    def row(effect, parameter, label, named=True):
+        return {"effect": effect, "parameter": parameter, "label": label, "named": named, "reference": 0.001,
+                "physical_range": [0.0, 1.0], "one_step": 0.1, "one_step_stderr": 0.01, "rollout": 0.12,
+                "rollout_stderr": 0.01, "bound_hit": None, "z": 1.4, "written": 0.12, "in_range": True}
+
+    rows = [row("linear_drag", "kx", "linear_drag kx"), row("cg_offset", "rx", "cg_offset rx"),
+            row("inertia_error", "dJxx", "J_xx", False), row("thrust_gain", "gain", "C_T (gain)", False),
+            row("rotor_inertia", "value", "rotor inertia", False),
+            row("flapping_pitch_ratio", "value", "flapping pitch/roll", False)]
+    block = {"horizon": 50, "windows": 10, "stride": 5, "iterations": 3, "stopped": "converged", "wall_s": 1.0,
+             "covariance": "sandwich", "parameters": rows, "training": {"ratio_to_rate_frozen_at_H": {}},
+             "held_out": {"ratio_to_rate_frozen_at_H": {}}, "statements": []}
+    table = [ln for ln in report_lines(block) if ln.startswith("| ") and "---" not in ln]
+    assert table[0].split("|")[2].strip() == "unit"
+    units = {ln.split("|")[1].strip(): ln.split("|")[2].strip() for ln in table[1:]}
+    assert units == {"linear_drag kx": "N s/m", "cg_offset rx": "m", "J_xx (vehicle)": "kg m²",
+                     "C_T (gain) (vehicle)": "–", "rotor inertia (vehicle)": "kg m²",
+                     "flapping pitch/roll (vehicle)": "–"}
+    assert all(is_unit(u.replace("²", "^2")) or u == "–" for u in units.values())

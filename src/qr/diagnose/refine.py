@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from ..effects import CATALOG, TIED, plausible_bounds
+from ..effects import CATALOG, DIMENSIONLESS, TIED, plausible_bounds, unit
 from ..errors import QrInputError
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
@@ -1412,6 +1412,18 @@ def _meaning(p: Parameter, ratio: float | None, outside: bool) -> str:
 
 # ---- the report's section ----------------------------------------------------------------------------
 
+PROPERTY_UNITS = {"rotor_inertia": "kg m²"}  # the others are ratios to the file's
+
+
+def _unit_of(p: dict) -> str:
+    """A refinement row's unit ("–" for a ratio): J in kg m² (the file's plus dJ), a catalog parameter's, a
+    property's."""
+    if p["effect"] == "inertia_error":
+        return "kg m²"
+    u = unit(p["effect"], p["parameter"]) or PROPERTY_UNITS.get(p["effect"], DIMENSIONLESS)
+    return "–" if u == DIMENSIONLESS else u
+
+
 def report_lines(block: dict) -> list[str]:
     """``report.md``'s section on the refinement (from ``diagnosis.json``'s ``refine`` block)."""
     H = block["horizon"]
@@ -1420,8 +1432,8 @@ def report_lines(block: dict) -> list[str]:
              f"{H}-step rollout error on {block['windows']} training windows (every {block['stride']}th start), "
              f"from the one-step (equation-error) estimates; {block['iterations']} Levenberg–Marquardt iterations "
              f"({block['stopped']}), {block['wall_s']:.1f} s. Standard errors: {block['covariance']}.", "",
-             "| parameter | one-step ± s.e. | rollout ± s.e. | z | physical range | written |",
-             "|---|---:|---:|---:|---|---:|"]
+             "| parameter | unit | one-step ± s.e. | rollout ± s.e. | z | physical range | written |",
+             "|---|---|---:|---:|---:|---|---:|"]
     fmt = lambda x: "–" if x is None else f"{x:.4g}"  # noqa: E731
     for p in block["parameters"]:
         ref = p["reference"] if p["effect"] == "inertia_error" else 0.0
@@ -1432,7 +1444,7 @@ def report_lines(block: dict) -> list[str]:
                                            (f" (at the {p['bound_hit']} bound)" if p["bound_hit"] else ""))
         if not p.get("refined", True):
             roll = "not admitted"
-        lines.append(f"| {p['label']}{'' if p['named'] else ' (vehicle)'} | {one} | {roll} | "
+        lines.append(f"| {p['label']}{'' if p['named'] else ' (vehicle)'} | {_unit_of(p)} | {one} | {roll} | "
                      f"{fmt(p['z']) if p['z'] is not None else '–'} | [{total(lo):.3g}, {total(hi):.3g}] | "
                      f"{fmt(total(p['written']))}" + ("" if p["in_range"] else " (out of range: one-step kept)"
                                                       if p["written"] == p["one_step"] else " (wanted out of range: "
