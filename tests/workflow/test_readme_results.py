@@ -267,3 +267,34 @@ def test_the_commands_the_readme_block_prints_are_valid_snakemake_invocations():
 def test_make_readme_results_runs_the_script():
     r = subprocess.run(["make", "-n", "readme-results", "CONFIG=ci"], capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0 and "-m qr.report.readme --config-name 'ci'" in r.stdout
+
+
+def test_the_goal_lines_state_met_or_not_with_the_numbers_that_decide():
+    """Hand-made tables: the physical model meets ≤ 1.0 on one hold-out and not on the other (ω 1.3 there);
+    the rollout-trained hybrid is under 0.7 everywhere but worse than the physical model on v in the second
+    hold-out; the repeat split is no hold-out of a new trajectory and is left out.  Replay: the extended model
+    at 0.44× / 0.40× with 1.2 % rotor speeds meets its goal, the hybrid at 0.56× attitude does not; the payload
+    at 0.09 m against 0.04 m (2.25×) does not."""
+    g = pd.DataFrame([
+        {"set": "b", "split": "speed", "held_out": "0.6-0.5", "model": "physical (refined)", "p": 0.5, "v": 0.47, "R": 0.48, "w": 0.92},
+        {"set": "b", "split": "speed", "held_out": "0.6-0.5", "model": "hybrid (rollout-trained)", "p": 0.3, "v": 0.3, "R": 0.3, "w": 0.5},
+        {"set": "p", "split": "trajectory", "held_out": "sideways", "model": "physical (refined)", "p": 0.9, "v": 0.2, "R": 0.9, "w": 1.3},
+        {"set": "p", "split": "trajectory", "held_out": "sideways", "model": "hybrid (rollout-trained)", "p": 0.6, "v": 0.25, "R": 0.6, "w": 0.6},
+        {"set": "p", "split": "repeat", "held_out": "every third", "model": "physical (refined)", "p": 9, "v": 9, "R": 9, "w": 9},
+    ])
+    assert rr.generalization_goals(g) == [
+        "- Goal, the refined physical model ≤ 1 × `rate_frozen` on p, v, R and ω: met on 1 of 2 hold-outs; not met "
+        "on p sideways (`trajectory`): ω 1.3.",
+        "- Goal, the rollout-trained hybrid ≤ 0.7 × `rate_frozen` on all four and never worse than the physical "
+        "model under it: met on 1 of 2 hold-outs; not met on p sideways (`trajectory`): p 0.6, worse than the "
+        "physical model on v.", ""]
+    r = pd.DataFrame([
+        {"set": "brushless", "model": "nominal", "position RMSE (m)": 0.09, "position / nominal": 1.0, "attitude / nominal": 1.0, "rotor speeds RMSE (%)": 3.1},
+        {"set": "brushless", "model": "extended", "position RMSE (m)": 0.04, "position / nominal": 0.44, "attitude / nominal": 0.40, "rotor speeds RMSE (%)": 1.2},
+        {"set": "brushless", "model": "hybrid", "position RMSE (m)": 0.037, "position / nominal": 0.41, "attitude / nominal": 0.56, "rotor speeds RMSE (%)": 1.8},
+        {"set": "payload", "model": "extended", "position RMSE (m)": 0.09, "position / nominal": 1.0, "attitude / nominal": 1.0, "rotor speeds RMSE (%)": 2.0},
+    ])
+    lines = rr.replay_goals(r)
+    assert lines[0].endswith("extended met (position 0.44×, attitude 0.4× the nominal's, rotor speeds 1.2 %); hybrid "
+                             "not met (position 0.41×, attitude 0.56× the nominal's, rotor speeds 1.8 %).")
+    assert lines[1].endswith("not met (0.09 m against 0.04 m, 2.2×).")

@@ -251,7 +251,86 @@ def generalization_section(df: pd.DataFrame, cfg: Config) -> list[str]:
         cfg.command("results/tables/generalization.csv"),
         "`qr evaluate` at h = 50: each model's mean absolute error as a multiple of `rate_frozen`'s (< 1 is "
         "better), position / velocity / attitude / body rate, and in brackets the share of held-out samples "
-        f"its 90 % band covers; {words}.", rows)
+        f"its 90 % band covers; {words}.", rows) + generalization_goals(df)
+
+
+# goals the project set itself (docs/evaluate.md, docs/replay.md), each line stating its numbers
+PHYSICAL_GOAL = 1.0  # the refined physical model at most rate_frozen's error on p, v, R and ω
+HYBRID_GOAL = 0.7  # the rollout-trained hybrid, and never worse than the physical model under it
+QUANTITY_NAMES = {"p": "p", "v": "v", "R": "R", "w": "ω"}
+
+
+def _worst(r) -> tuple[str, float]:
+    q = max(QUANTITY_NAMES, key=lambda c: _num(r.get(c)) if math.isfinite(_num(r.get(c))) else math.inf)
+    return QUANTITY_NAMES[q], _num(r.get(q))
+
+
+def _goal_line(what: str, results: list[tuple[str, bool, str]]) -> str:
+    """``what``: met on k of n hold-outs, and where not, the hold-out with its numbers."""
+    met = sum(ok for _, ok, _ in results)
+    missed = "; ".join(f"{h}: {why}" for h, ok, why in results if not ok)
+    return (f"- Goal, {what}: met on {met} of {len(results)} hold-outs" + (f"; not met on {missed}" if missed else "")
+            + ".")
+
+
+def generalization_goals(df: pd.DataFrame) -> list[str]:
+    """The goals on the hold-outs that fly new trajectories (splits ``trajectory`` and ``speed``)."""
+    new = df[df["split"].astype(str).isin(["trajectory", "speed"])]
+    phys, hyb = [], []
+    for (s, split, held), g in new.groupby(["set", "split", "held_out"], sort=False):
+        where = f"{s} {held} (`{split}`)"
+        p = g[g["model"].astype(str).str.contains("physical")]
+        h = g[g["model"].astype(str).str.contains("rollout-trained")]
+        if len(p):
+            r = p.iloc[0]
+            q, x = _worst(r)
+            phys.append((where, all(_num(r[c]) <= PHYSICAL_GOAL for c in QUANTITY_NAMES), f"{q} {_g(x, 3)}"))
+        if len(h):
+            r = h.iloc[0]
+            q, x = _worst(r)
+            ok = all(_num(r[c]) <= HYBRID_GOAL for c in QUANTITY_NAMES)
+            why = f"{q} {_g(x, 3)}"
+            if len(p):
+                worse = [QUANTITY_NAMES[c] for c in QUANTITY_NAMES if _num(r[c]) > _num(p.iloc[0][c])]
+                ok = ok and not worse
+                why += f", worse than the physical model on {', '.join(worse)}" if worse else ""
+            hyb.append((where, ok, why))
+    out = []
+    if phys:
+        out.append(_goal_line(f"the refined physical model ≤ {PHYSICAL_GOAL:g} × `rate_frozen` on p, v, R and ω",
+                              phys))
+    if hyb:
+        out.append(_goal_line(f"the rollout-trained hybrid ≤ {HYBRID_GOAL:g} × `rate_frozen` on all four and never "
+                              "worse than the physical model under it", hyb))
+    return out + ([""] if out else [])
+
+
+def replay_goals(df: pd.DataFrame) -> list[str]:
+    """The closed-loop replay's goals: the extended and hybrid models at most half the nominal model's error
+    on position and attitude, rotor speeds within 3 % RMS of the logged ones (brushless set); the payload's
+    extended model within twice the brushless one's position error."""
+    out = []
+    b = df[df["set"].astype(str) == "brushless"]
+    models = b[b["model"].astype(str).str.startswith(("extended", "hybrid"))]
+    if len(models):
+        res = []
+        for _, r in models.iterrows():
+            pn, an, rs = _num(r.get("position / nominal")), _num(r.get("attitude / nominal")), _num(
+                r.get("rotor speeds RMSE (%)"))
+            res.append((str(r["model"]), pn <= 0.5 and an <= 0.5 and rs <= 3.0,
+                        f"position {_g(pn, 2)}×, attitude {_g(an, 2)}× the nominal's, rotor speeds {_g(rs, 2)} %"))
+        met = [m for m, ok, _ in res if ok]
+        out.append("- Goal, brushless: the extended and hybrid models' error ≤ ½ × the nominal's on position and "
+                   "attitude with rotor speeds within 3 % RMS: " + "; ".join(
+                       f"{m} {'met' if ok else 'not met'} ({why})" for m, ok, why in res) + ".")
+    pe = df[(df["set"].astype(str) == "payload") & (df["model"].astype(str) == "extended")]
+    be = b[b["model"].astype(str) == "extended"]
+    if len(pe) and len(be):
+        x, y = _num(pe.iloc[0]["position RMSE (m)"]), _num(be.iloc[0]["position RMSE (m)"])
+        out.append(f"- Goal, payload: the carried model with the payload named flies within 2 × the brushless "
+                   f"extended model's position error: {'met' if x <= 2 * y else 'not met'} ({_g(x)} m against "
+                   f"{_g(y)} m, {_g(x / y, 2)}×).")
+    return out + ([""] if out else [])
 
 
 def _pivot(rows: list[tuple[str, str, str]], first: str) -> list[dict]:
@@ -295,7 +374,7 @@ def replay_section(df: pd.DataFrame, cfg: Config) -> list[str]:
         "`qr replay`: each model flown by the controller the flights flew, along their rebuilt setpoints: the "
         "RMSE of position and attitude against the logs and, in brackets, over the nominal model's; "
         f"{_split_words(ROLLOUT_SPLITS, 'repeat')}.", _pivot(cells, "model"),
-        empty="No set of this workflow names its controller and trajectory: nothing was replayed.")
+        empty="No set of this workflow names its controller and trajectory: nothing was replayed.") + replay_goals(df)
 
 
 def _learn_split(results: Path, sweep: str) -> tuple[str, str]:
