@@ -99,3 +99,24 @@ def test_a_users_controller_flies_through_the_generic_loop_as_the_compiled_one(c
     assert np.max(np.abs(a.p - sp.at(a.t, order=0)["p"])) > 0.01  # it flew the trajectory, with a tracking error
     np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(b.thrust_cmd, a.thrust_cmd, rtol=0, atol=1e-15)
+
+
+def test_a_model_whose_delay_is_shorter_than_the_step_flies_with_a_finer_step(crazyflie):
+    """A refined model's actuator delay of 0.42 ms (below the replay's 1 ms step; a full workflow run wrote one):
+    the replay integrates at the lowest multiple of the controller's 500 Hz whose step is at most the delay
+    (2500 Hz, 0.4 ms), and the delay changes the flight by little (a 0.42 ms lag on a 10 Hz loop): within 1 mm
+    of the same vehicle without it."""
+    from qr.replay.fly import fly, initial_state, integration_rate
+    from qr.replay.lee import LeeController
+
+    assert integration_rate(1000.0, 500.0, 0.00042) == 2500.0  # 1/2500 = 0.4 ms ≤ 0.42 ms < 1/2000
+    assert integration_rate(1000.0, 500.0, 0.0) == 1000.0 and integration_rate(1000.0, 500.0, 0.02) == 1000.0
+    delayed = crazyflie.with_changes(effects=[{"name": "actuator_delay", "parameters": {"delay_s": 0.00042}}])
+    x0 = initial_state(crazyflie, np.array([0.0, 0.0, 1.0]), np.zeros(3), np.array([1.0, 0, 0, 0]), np.zeros(3),
+                       np.full(4, crazyflie.hover_speed))
+    sp = _setpoints(0.8)
+    a = fly(delayed, LeeController(), sp, x0, 0.0, 2.0, 0.037)
+    b = fly(crazyflie, LeeController(), sp, x0, 0.0, 2.0, 0.037)
+    assert a.t[1] - a.t[0] == pytest.approx(0.0004) and b.t[1] - b.t[0] == pytest.approx(0.001)
+    on_b = np.stack([np.interp(b.t, a.t, a.p[:, i]) for i in range(3)], axis=1)
+    assert np.max(np.abs(on_b - b.p)) < 1e-3

@@ -105,9 +105,23 @@ def fly(vehicle, controller: Controller, setpoints: Setpoints, x0: np.ndarray, t
     integrators hold what the vehicle needs to hover (as a flight's do when its log starts in the air); the
     plant then starts again from ``x0``, the controller's state kept."""
     controller.reset(vehicle, mass)
+    sim_rate_hz = integration_rate(sim_rate_hz, float(controller.rate_hz),
+                                   float(true_params(vehicle, list(vehicle.effects))[P_DELAY]))
     if settle_s > 0:
         _loop(vehicle, controller, Held(setpoints, t0), x0, t0 - settle_s, t0, actuation, sim_rate_hz, None, np.inf)
     return _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, logged_position, max_error_m)
+
+
+def integration_rate(rate_hz: float, controller_hz: float, delay_s: float) -> float:
+    """``rate_hz``, or where a model's actuator delay is shorter than its step, the lowest multiple of the
+    controller's rate whose step is at most the delay: the delayed rotor map reads speeds of past steps only
+    (a refined model's delay may be a fraction of a millisecond).  The flown times show the step taken."""
+    if not 0.0 < delay_s < 1.0 / rate_hz:
+        return rate_hz
+    k = max(1, math.ceil(1.0 / (delay_s * controller_hz)))
+    while 1.0 / (k * controller_hz) > delay_s:
+        k += 1
+    return k * controller_hz
 
 
 def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, logged_position, max_error_m) -> Flown:
