@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
 from pathlib import Path
 
 import numpy as np
@@ -33,13 +34,42 @@ from . import resample
 POSE_TOPICS = ("vehicle_mocap_odometry", "vehicle_visual_odometry")
 
 
+class _ReadsTooMuch(Exception):
+    pass
+
+
+class _Bounded:
+    """The file as pyulog reads it, stopped once it has read several times the file's size: at a message cut
+    short by the file's end pyulog seeks back by the message's full length, before where it began, and reads
+    the same bytes again for ever (pyulog 1.3; a log copied off the SD card in part)."""
+
+    def __init__(self, f, size: int):
+        self._f, self._left = f, 4 * size + (1 << 20)
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._f.read(n)
+        self._left -= len(data)
+        if self._left < 0:
+            raise _ReadsTooMuch("the parser read the file's bytes over and over (a message cut short)")
+        return data
+
+    def seek(self, *args):
+        return self._f.seek(*args)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def close(self) -> None:  # the caller's `with` closes the file
+        pass
+
+
 class _Log:
     def __init__(self, path: Path):
         from pyulog import ULog
 
         try:
             with open(path, "rb") as f, contextlib.redirect_stdout(io.StringIO()):  # pyulog prints its warnings
-                self.ulog = ULog(f)
+                self.ulog = ULog(_Bounded(f, os.fstat(f.fileno()).st_size))
         except Exception as e:  # pyulog raises bare exceptions on a damaged file
             raise QrInputError(path, f"not a readable PX4 ULog ({type(e).__name__}: {e})",
                                "copy the .ulg again from the SD card; a partial file cannot be read") from None
