@@ -65,3 +65,13 @@ def test_the_summary_and_the_overview_show_every_model_with_its_ratio_to_nominal
     assert list(shown["position RMSE (m)"]) == ["0.1 (1×)", "0.04 (0.4×)"] and list(shown["flights"]) == [2, 2]
     html = overview_html(pd.DataFrame(), None, {}, [], replay=pd.read_csv(tmp_path / "replay.csv"))
     assert "Closed-loop replay under the vehicle's own controller" in html and "0.04 (0.4×)" in html
+
+
+def test_a_workflow_without_a_replayed_set_writes_the_tables_header_and_the_overview_reads_it(tmp_path):
+    """A data set whose sets name no controller (the custom-data workflow): the summary is the header alone,
+    which the overview reads as no replay (it once failed on an empty file)."""
+    from qr.stages.replay_sets import SUMMARY_COLUMNS, summary_table
+
+    summary_table({}, tmp_path / "replay.csv")
+    df = pd.read_csv(tmp_path / "replay.csv")
+    assert list(df.columns) == SUMMARY_COLUMNS and len(df) == 0

@@ -71,6 +71,11 @@ def replay_set(logs, evaluation, learned: list, learned_labels: list[str], out, 
                       log=lambda m: None)
 
 
+SUMMARY_COLUMNS = ["set", "flights", "model", "position RMSE (m)", "max (m)", "parts at (s)", "attitude RMSE (deg)",
+                   "rotor speeds RMSE (%)", "thrust RMSE (N)", "position / nominal", "attitude / nominal",
+                   "lost at (s)"]
+
+
 def summary_table(replay_dirs: dict, table) -> pd.DataFrame:
     """The sets' replays side by side: per model the RMSE of position, attitude, rotor speeds and thrust over
     the replayed flights, when it parts from the log, and its position and attitude error over the nominal
@@ -91,7 +96,7 @@ def summary_table(replay_dirs: dict, table) -> pd.DataFrame:
                 "position / nominal": _ratio(m["position"]["rmse_m"], first["position"]["rmse_m"]),
                 "attitude / nominal": _ratio(m["attitude"]["rmse_deg"], first["attitude"]["rmse_deg"]),
                 "lost at (s)": m["diverged_at_s"]})
-    df = pd.DataFrame(rows)
+    df = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)  # a workflow without a replayed set: the header alone
     write_table(df, table, title="Closed-loop replay of held-out flights under the vehicle's own controller (qr "
                                  "replay; the held-out flights repeat the training trajectories: interpolation)")
     return df
