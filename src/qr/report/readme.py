@@ -330,6 +330,8 @@ def replay_goals(df: pd.DataFrame) -> list[str]:
         out.append(f"- Goal, payload: the carried model with the payload named flies within 2 × the brushless "
                    f"extended model's position error: {'met' if x <= 2 * y else 'not met'} ({_g(x)} m against "
                    f"{_g(y)} m, {_g(x / y, 2)}×).")
+    if out:
+        out.append("- Why a goal is not met, measured: [docs/replay.md](docs/replay.md#goals-issue-34) (Goals).")
     return out + ([""] if out else [])
 
 
