@@ -56,7 +56,7 @@ def splits(draw, infos):
     return SplitConfig(kind="speed", time_scales=given_scales)
 
 
-def _check(flights, infos, split):
+def assert_split_holds(flights, infos, split):
     try:
         a = assign(flights, split, infos)
     except QrInputError:
@@ -91,7 +91,7 @@ def _check(flights, infos, split):
 def test_no_split_puts_a_held_out_type_or_scale_on_both_sides_and_validation_never_scores(data):
     flights, infos = data.draw(flight_sets())
     split = data.draw(splits(infos))
-    _check(flights, infos, split)
+    assert_split_holds(flights, infos, split)
 
 
 WORKFLOW_SPLITS = [
@@ -105,7 +105,7 @@ WORKFLOW_SPLITS = [
 @pytest.mark.parametrize("set_name, spec", WORKFLOW_SPLITS)
 def test_the_workflows_splits_of_the_measured_sets_hold_the_property(set_name, spec):
     fs = load_sets(DATA)[set_name]
-    a = _check(list(fs.flights), fs.infos, SplitConfig(**spec))
+    a = assert_split_holds(list(fs.flights), fs.infos, SplitConfig(**spec))
     assert a is not None
 
 

@@ -32,7 +32,7 @@ EPOCH_S = 1.7e9
 EPOCH_NS = 1_700_000_000_000_000_000
 
 
-def _bits_equal(a: pd.DataFrame, b: pd.DataFrame) -> None:
+def assert_bits_equal(a: pd.DataFrame, b: pd.DataFrame) -> None:
     """Same columns, dtypes and values: floats compared by their bits (NaN equal to NaN, -0.0 not 0.0)."""
     assert list(a.columns) == list(b.columns)
     for c in a.columns:
@@ -94,7 +94,7 @@ def test_flight_files_round_trip_to_the_bit(df):
             path = Path(d) / name
             write_flight(df, path)
             back = pd.read_parquet(path) if name.endswith(".parquet") else pd.read_csv(path)
-            _bits_equal(back, df)
+            assert_bits_equal(back, df)
             path.unlink()
 
 
@@ -121,7 +121,7 @@ def test_qr_reads_back_the_stamps_it_wrote(t_ns):
             path = Path(d) / name
             write_flight(df, path)
             back = read_flight(path)
-            _bits_equal(back[["t", "px", "py", "pz", "u1", "t_ns"]], df[["t", "px", "py", "pz", "u1", "t_ns"]])
+            assert_bits_equal(back[["t", "px", "py", "pz", "u1", "t_ns"]], df[["t", "px", "py", "pz", "u1", "t_ns"]])
 
 
 @ROUND
@@ -130,11 +130,11 @@ def test_result_tables_round_trip_to_the_bit(df):
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "table.csv"
         write_table(df, path, title="a table")
-        _bits_equal(pd.read_csv(path), df)
+        assert_bits_equal(pd.read_csv(path), df)
         assert path.with_suffix(".md").read_text().startswith("### a table")
         pq = Path(d) / "dataset.parquet"
         datasets.write_table(df, pq)
-        _bits_equal(pd.read_parquet(pq), df)
+        assert_bits_equal(pd.read_parquet(pq), df)
 
 
 def test_qr_summary_writes_its_numbers_whole(tmp_path, capsys):
@@ -153,7 +153,7 @@ def test_qr_summary_writes_its_numbers_whole(tmp_path, capsys):
     back = pd.read_csv(tmp_path / "s.csv")
     floats = [c for c in expected if expected[c].dtype.kind == "f"]
     assert floats
-    _bits_equal(back[floats], expected[floats])
+    assert_bits_equal(back[floats], expected[floats])
 
 
 # ---- end to end: epoch stamps through qr ingest and qr diagnose ---------------------------------------
