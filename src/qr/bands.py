@@ -158,8 +158,10 @@ def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> dict:
             continue
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(r[ok] > 0, e[ok] / r[ok], np.where(e[ok] > 0, np.inf, 0.0))
-        s = float(np.quantile(ratio, level))
-        out[q] = s if math.isfinite(s) else None
+        ratio = np.sort(ratio)
+        hi = min(int(math.ceil(level * (len(ratio) - 1))), len(ratio) - 1)
+        # (a radius of 0 under an error at the quantile: no scale makes that band cover)
+        out[q] = float(np.quantile(ratio, level)) if math.isfinite(ratio[hi]) else None
     return out
 
 

@@ -343,6 +343,13 @@ def held_out_models(vehicle, diag_out, out_dir: Path) -> tuple[list[str], list[s
     add({**one, "effects": one_step}, "extended_physical.yaml" if remainder else "extended_vehicle.yaml", "extended")
     if doc.get("refine"):
         add(raw, "refined_physical.yaml", "physical (refined)")
+        from ..bands import SUFFIX, parameter_block
+
+        band = parameter_block(doc["refine"])  # its Monte Carlo band's source, beside it (qr.bands)
+        if band is not None:
+            from ..atomic import write_json
+
+            write_json(out_dir / f"refined_physical{SUFFIX}", band)
     if remainder:  # the remainder was fitted against the equation-error model
         add({**one, "effects": one_step, "torque_remainder": remainder}, "extended_vehicle.yaml", "hybrid")
     return models, labels
