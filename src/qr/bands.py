@@ -230,7 +230,7 @@ def perturbed(vehicle, params: list[dict], values) -> tuple:
     effects (the refinement's, which the file lists after the vehicle's own), added at its neutral values
     where the file has none (a coefficient the refinement left where it was)."""
     from .effects import CATALOG
-    from .diagnose.refine import PROPERTIES
+    from .vehicle import ROTOR_PROPERTIES as PROPERTIES  # (the keys the refinement may write)
 
     effects = [{"name": e["name"], "parameters": dict(e["parameters"])} for e in vehicle.effects]
     props: dict = {}
@@ -256,7 +256,7 @@ def current(vehicle, params: list[dict]) -> np.ndarray:
     """The values the vehicle file holds for ``params`` (as :func:`perturbed` sets them; NaN where absent and not
     a neutral coefficient)."""
     from .effects import CATALOG
-    from .diagnose.refine import PROPERTIES
+    from .vehicle import ROTOR_PROPERTIES as PROPERTIES  # (the keys the refinement may write)
 
     out = []
     for p in params:
