@@ -79,6 +79,9 @@ class ResidualConfig:
     # false: the vehicle file's linear torque remainder (a hybrid of qr diagnose) is dropped and the network
     # trained on top of the physical model alone
     keep_remainder: bool = True
+    # residuals trained on the training flights resampled by flight, each with its own seed, saved beside the
+    # hybrid (qr.ensemble): the band qr evaluate draws around it (qr.bands); 0: none, no band
+    members: int = setting(5, "integer", ge=0, le=100)
     force_scale: float = setting(0.05, gt=0)  # output scale of the force, in m g
     torque_scale: float = setting(0.05, gt=0)  # ... of the torque, in m g times the mean rotor arm
 

@@ -294,6 +294,25 @@ def at(block: dict, h: int, q: str):
 # ---- settings (config group `evaluate`), the scored pieces of a segment, the Markdown table ----
 
 @dataclass
+class BandsConfig:
+    """``evaluate.bands``: the uncertainty band of each model that has a source (qr.bands)."""
+
+    KEY: ClassVar[str] = "evaluate.bands"
+    enabled: bool = True  # false: no bands (evaluation.json without the block `bands`)
+    draws: int = setting(32, "integer", ge=2, le=10_000)  # parameter draws of a Monte Carlo band
+    seed: int = setting(0, "integer", ge=0)  # their generator's seed
+
+    def __post_init__(self):
+        check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
+
+    @classmethod
+    def from_dict(cls, d) -> "BandsConfig":
+        d = dict(d or {})
+        check_known(cls.KEY, d, cls, DEFAULTS_FILE)
+        return cls(**d)
+
+
+@dataclass
 class EvaluateConfig:
     KEY: ClassVar[str] = "evaluate"
     horizon: int = setting(50, "integer", ge=1, le=100_000)  # H: steps of the log's sample period
@@ -307,10 +326,14 @@ class EvaluateConfig:
     # the flights the scored models were trained on: each window is checked against their envelope
     # (speed, tilt, rotor speeds, body rates; qr.envelope); empty: no check
     trained_on: list[str] = field(default_factory=list)
+    # each model's uncertainty band (qr.bands): parameter draws or a residual ensemble, where known
+    bands: BandsConfig = field(default_factory=BandsConfig)
 
     def __post_init__(self):
         if isinstance(self.split, dict):
             self.split = SplitConfig.from_dict(self.split)
+        if isinstance(self.bands, dict):
+            self.bands = BandsConfig.from_dict(self.bands)
         self.trained_on = [str(f) for f in (self.trained_on or [])]
         check_fields(self, lambda name: f"{self.KEY}.{name}", DEFAULTS_FILE)
 

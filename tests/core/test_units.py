@@ -28,7 +28,7 @@ from qr.vehicle import load_vehicle
 HIDDEN = [{"name": "linear_drag", "parameters": {"kx": 0.3, "ky": 0.3, "kz": 0.1}},
           {"name": "cg_offset", "parameters": {"rx": 0.01, "ry": -0.008}}]
 CANDIDATES = "diagnose.candidates=[linear_drag,cg_offset,thrust_gain,rotor_drag,mass_error]"
-TINY = ["learn.horizon=10", "learn.width=4", "learn.depth=1", "learn.epochs=1", "learn.stride=8"]
+TINY = ["learn.horizon=10", "learn.width=4", "learn.depth=1", "learn.epochs=1", "learn.stride=8", "learn.members=0"]
 
 # ---- what a unit is ----------------------------------------------------------------------------------
 

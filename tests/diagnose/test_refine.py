@@ -240,3 +240,35 @@ def test_one_rotor_drag_named_as_force_and_moment_is_refined_as_one_parameter(tm
     written = {e["name"]: e["parameters"].get("k") for e in r.effects(start)}
     assert written["rotor_drag"] == written["rotor_drag_moment"] == drag[0].written
     assert r.to_json()["parameters"][0]["shared_with"] == ["rotor_drag_moment"]
+
+
+def test_the_covariance_reaches_the_result_and_its_band_flies_the_written_vehicle(inertia):
+    """Issue 33 part 4: the sandwich covariance of the parameters off their bounds is in the result and in
+    diagnosis.json's refine block (its diagonal: the standard errors stated), with the band's scale chosen on
+    the held-out windows; a draw flown from the vehicle file as written (qr.bands.perturbed) is the plant the
+    refinement flies for it."""
+    from qr import bands
+    from qr.diagnose.refine import _plant, _specs, RefineSettings
+
+    v, runs = inertia
+    r = runs[0][0]
+    idx, cov = r.covariance
+    assert len(idx) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > -1e-12 * np.abs(cov).max())
+    for i, s in zip(idx, np.sqrt(np.diag(cov))):
+        if r.parameters[i].rollout_se is not None:
+            assert s == pytest.approx(r.parameters[i].rollout_se, rel=1e-9)
+    block = r.to_json()["parameter_covariance"]
+    assert block["parameters"] == [int(i) for i in idx] and np.array(block["matrix"]) == pytest.approx(cov)
+    assert all(x is not None and x > 0 for x in block["band_scale"].values())
+    # the written vehicle, as qr diagnose writes it, and one draw of its parameters
+    written = v.with_changes(**r.properties(), effects=[*v.effects, *r.effects([])])
+    src = bands.read_source(bands.parameter_block(r.to_json()), "diagnosis.json", Path("."))
+    assert np.allclose(bands.current(written, list(src.params)), src.written)
+    theta = bands.draw_parameters(src.written, src.covariance, src.bounds, 1, seed=2)[0]
+    from qr.sim.plant import true_params
+
+    mine = true_params(*bands.perturbed(written, list(src.params), theta))
+    specs, _ = _specs(v, [], RefineSettings(horizon=H, stride=STRIDE))
+    full = np.array([p.written for p in r.parameters])
+    full[idx] = theta
+    assert mine == pytest.approx(_plant(v, specs, full), rel=1e-12, abs=1e-15)

@@ -23,7 +23,7 @@ from qr.sim.synth import SynthConfig, write_synth
 from qr.vehicle import load_vehicle, save_vehicle
 
 C = 0.01  # N m s: a time constant J / c of about 0.8 s on the Hummingbird
-TINY = ["learn.horizon=10", "learn.width=4", "learn.depth=1", "learn.epochs=2", "learn.stride=4"]
+TINY = ["learn.horizon=10", "learn.width=4", "learn.depth=1", "learn.epochs=2", "learn.stride=4", "learn.members=0"]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def trained(flights):
 
     doc = run_residual([flights / "a" / "flight.csv", flights / "b" / "flight.csv"], flights / "a" / "vehicle.yaml",
                        flights / "res", ["learn.horizon=20", "learn.width=16", "learn.depth=1", "learn.epochs=6",
-                                         "learn.stride=3"], track=False, log=lambda m: None)
+                                         "learn.stride=3", "learn.members=0"], track=False, log=lambda m: None)
     return doc, flights / "res"
 
 
@@ -166,7 +166,7 @@ def test_fine_tuning_starts_from_the_vehicles_residual(flights, trained, tmp_pat
     from qr.stages.learn_residual import run_residual
 
     _, out = trained
-    args = ["learn.horizon=20", "learn.epochs=1", "learn.stride=4", "learn.width=64"]
+    args = ["learn.horizon=20", "learn.epochs=1", "learn.stride=4", "learn.width=64", "learn.members=0"]
     ft = run_residual([flights / "c" / "flight.csv"], out / "hybrid_vehicle.yaml", tmp_path / "ft", args,
                       track=False, log=lambda m: None)
     fresh = run_residual([flights / "c" / "flight.csv"], flights / "a" / "vehicle.yaml", tmp_path / "fresh", args,

@@ -199,6 +199,10 @@ class Refinement:
     admission: dict = field(default_factory=dict)  # extra term → (held-out loss without, with, admitted)
     balance_ref: np.ndarray | None = None  # the one-step model's force and torque balance rms per axis
     balance: np.ndarray | None = None  # the written model's balance residual per axis over the one-step model's
+    # the sandwich covariance (parameter units) of the parameters off their bounds at the rollout's optimum:
+    # (their indices into ``parameters``, the matrix); the Monte Carlo band's draws (qr.bands)
+    covariance: tuple | None = None
+    band_scale: dict | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
 
     def properties(self) -> dict:
         """The vehicle keys refined (only those that moved): ``rotor_inertia``, ``rotor_torque_gains``,
@@ -280,6 +284,15 @@ class Refinement:
             "held_out": {"ratio_to_rate_frozen_at_H": ratios(self.held_out), "mae_at_H": mae(self.held_out),
                          "windows": int(self.held_out["rate_frozen"]["p"]["windows"]) if self.held_out else 0},
             "statements": statements(self),
+            **({"parameter_covariance": {
+                "parameters": [int(i) for i in self.covariance[0]],
+                "labels": [self.parameters[int(i)].label for i in self.covariance[0]],
+                "matrix": [[float(x) for x in row] for row in self.covariance[1]],
+                "units": "each parameter's own (as parameters[].written)",
+                "at": "the rollout's optimum within the plausible bounds (rollout), parameters off their bounds",
+                "band_scale": self.band_scale,
+                "calibrated_on": "the diagnosis's held-out windows (qr.bands: the 90 % band covers 90 % there)"}}
+               if self.covariance is not None and len(self.covariance[0]) else {}),
         }
 
 
@@ -755,7 +768,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     theta0 = np.array([s.start for s in specs])
     log(f"refining {len(specs)} parameters on {len(stack.starts)} training windows of {H} steps")
     free, wanted, iters, stopped, admission = _admit(fit, specs, theta0, held_out, vehicle, H, weight, settings, log)
-    se = fit.stderr(wanted, fit.covariance(wanted, free))
+    cov_wanted = fit.covariance(wanted, free)
+    se = fit.stderr(wanted, cov_wanted)
     params = []
     for k, s in enumerate(specs):
         hit = "lower" if wanted[k] <= s.lo + 1e-9 * s.scale else ("upper" if wanted[k] >= s.hi - 1e-9 * s.scale
@@ -800,10 +814,34 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     blocks_test = _blocks(held_out, vehicle, effects, specs, written, H) if held_out else {}
     ablation = _ablation(train, held_out, stack, vehicle, specs, theta0, written, H)
     diverged = fit.normal(written, [])[5]
+    covariance = fit.sandwich(cov_wanted)
+    band_scale = _band_scale(held_out, vehicle, specs, written, covariance, H, seed)
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
                       time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission,
-                      None if limits is None else limits[1], balance_after)
+                      None if limits is None else limits[1], balance_after, covariance, band_scale)
+
+
+def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, covariance, H: int,
+                seed: int) -> dict | None:
+    """The Monte Carlo band's scale per quantity (:func:`qr.bands.calibrate`) on the held-out windows: the
+    written model and ``BAND_DRAWS`` draws of its parameters from the covariance, each within its bounds."""
+    idx, cov = covariance
+    if not held_out or not len(idx):
+        return None
+    from .. import bands
+
+    bounds = np.array([[specs[i].lo, specs[i].hi] for i in idx])
+    thetas = bands.draw_parameters(written[idx], cov, bounds, BAND_DRAWS, seed)
+    Ps = [_plant(vehicle, specs, written)]
+    for th in thetas:
+        full = written.copy()
+        full[idx] = th
+        Ps.append(_plant(vehicle, specs, full))
+    return bands.calibrate(bands.spread(held_out, np.array(Ps), H))
+
+
+BAND_DRAWS = 32  # = evaluate.bands.draws' default: the band calibrated is the band evaluated
 
 
 def _balance_check(balance: "Balance", vehicle, specs: list[_Spec], theta0) -> tuple:
@@ -1228,6 +1266,20 @@ class _Fit:
                 C = Gk[:-lag].T @ Gk[lag:]
                 B += (1.0 - lag / (L + 1.0)) * (C + C.T)
         return idx, np.ascontiguousarray(_psd(A - Ad, A)), B
+
+    def sandwich(self, cov) -> tuple:
+        """``(idx, Σ)``: the sandwich ``A⁻¹ B A⁻¹`` of :meth:`covariance`'s result in parameter units (an empty
+        matrix where ``A`` is not positive definite)."""
+        idx, Hm, B = cov
+        p = idx.size
+        if not p:
+            return idx, np.zeros((0, 0))
+        X, Lm, Y = np.empty((p, p)), np.empty((p, p)), np.empty((p, p))
+        if not cholesky_solve(Hm, np.ascontiguousarray(B), Lm, X):
+            return idx[:0], np.zeros((0, 0))
+        cholesky_solve(Hm, np.ascontiguousarray(X.T), Lm, Y)
+        Y = 0.5 * (Y + Y.T)
+        return idx, Y * np.outer(self.scale[idx], self.scale[idx])
 
     def stderr(self, theta, cov=None, free=None) -> np.ndarray:
         """Standard errors (parameter units) from the Gauss–Newton sandwich ``A⁻¹ B A⁻¹`` (:meth:`covariance`);

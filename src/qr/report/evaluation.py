@@ -146,8 +146,9 @@ def envelope_section(doc: dict) -> list[str]:
     return L + [""]
 
 
-def report(doc: dict, figure: str | None) -> str:
-    """``report.md``: ``figure`` is the MAE figure's path relative to the report (None: no figure)."""
+def report(doc: dict, figure: str | None, bands_figure: str | None = None) -> str:
+    """``report.md``: ``figure`` is the MAE figure's path relative to the report (None: no figure);
+    ``bands_figure``: the bands' (:mod:`qr.report.bands`)."""
     H, n = doc["horizon"], len(doc["flights"])
     lo, hi = doc["dt_range"]
     growth, hs = growth_table(doc)
@@ -169,6 +170,9 @@ def report(doc: dict, figure: str | None) -> str:
         scored = [k for k in doc["models"] if k not in REFERENCES]
         L += ["## Per flight", "", f"Ratio to `{BASELINE}` at h = {H}, {' / '.join(NAMES[q] for q in QUANTITIES)}, "
               f"per model ({', '.join(labels(doc)[k] for k in scored)}):", "", *per_flight_table(doc), ""]
+    from .bands import bands_section
+
+    L += bands_section(doc, bands_figure)
     L += envelope_section(doc)
     L += ["For comparison, the benchmark's published h = 50 figures on its own held-out Crazyflie flights "
           "(other flights, so only the orders of magnitude compare):", ""]

@@ -96,9 +96,27 @@ def pooled_rows(group: list[Scored], held_out: str) -> list[dict]:
         for q in QUANTITIES:
             x, nx, b, nb = acc[q]
             row[q] = (x / nx) / (b / nb) if nx and nb and b else math.nan
-        row["coverage90"] = math.nan
+        row["coverage90"] = _pooled_coverage(group, lab)
         rows.append(row)
     return rows
+
+
+def _pooled_coverage(group: list[Scored], lab: str) -> float:
+    """The 90 % band's coverage of ``lab`` over the folds' samples (per quantity weighted by its samples, then
+    the mean over the quantities, as each evaluation's ``coverage90``); NaN unless every fold has the band."""
+    hit: dict[str, list[float]] = {}
+    for s in group:
+        found = [(doc, k) for l2, doc, k in _models(s.docs) if l2 == lab]
+        band = ((found[0][0].get("bands") or {}).get(found[0][1]) or {}) if found else {}
+        if not band.get("by_quantity"):
+            return math.nan
+        for q, b in band["by_quantity"].items():
+            if b.get("coverage90") is not None and b.get("samples"):
+                acc = hit.setdefault(q, [0.0, 0])
+                acc[0] += b["coverage90"] * b["samples"]
+                acc[1] += b["samples"]
+    shares = [a / n for a, n in hit.values() if n]
+    return float(sum(shares) / len(shares)) if shares else math.nan
 
 
 def _envelope_share(docs) -> float | None:

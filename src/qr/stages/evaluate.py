@@ -111,6 +111,11 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     trained_on = trained_on or ({"flights": ecfg.trained_on} if ecfg.trained_on else None)
     envelope = training_envelope(trained_on, vehs[0], ecfg, filter_cfg, say) if trained_on else None
     per_flight, steps, outside = {}, [], {}
+    bandset = None
+    if ecfg.bands.enabled:
+        from ..bands import BandSet
+
+        bandset = BandSet(names, [str(v) for v in vehicles], vehs, ecfg.bands.draws, ecfg.bands.seed, say)
     for i, (f, m) in enumerate(zip(flights, measured)):
         conventions.require(m, vehs[0], f, ecfg.skip_checks, "evaluate.skip_checks=[{name}] at the end of the command",
                             vehicles[0])
@@ -120,8 +125,10 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
             steps.append(np.diff(st["t"].to_numpy(float)))
             say(f"rolling out {len(models)} models over {int(keep.sum())} starts, H = {ecfg.horizon}")
             parts.append(rollout.score(st, meas, ecfg.horizon, ecfg.max_input_gap, models, keep))
-            if envelope is not None:
+            if envelope is not None or bandset is not None:
                 wins.append(rollout.windows(st, meas, ecfg.horizon, ecfg.max_input_gap, keep))
+            if bandset is not None:
+                bandset.add(str(f), wins[-1], ecfg.horizon)
         per_flight[str(f)] = rollout.pool(parts)
         if envelope is not None:
             from ..envelope import check
@@ -145,13 +152,21 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
         doc["split"] = split.to_dict()
     if envelope is not None:
         doc["envelope"] = envelope_block(envelope, trained_on["flights"], outside)
+    if bandset is not None:
+        doc["bands"], doc["bands_none"] = bandset.blocks(ecfg.horizon)
     from ..report.evaluation import mae_figure, report
 
     with atomic_dir(out, force=force, command="qr evaluate") as tmp:
+        band_fig = None
         if figures:
             (tmp / "figures").mkdir()
             mae_figure(doc, tmp / "figures" / "rollout_mae.png")
-        write_text(tmp / "report.md", report(doc, "figures/rollout_mae.png" if figures else None))
+            if doc.get("bands"):
+                from ..report.bands import bands_figure
+
+                band_fig = "figures/bands.png"
+                bands_figure(doc, bandset, tmp / band_fig)
+        write_text(tmp / "report.md", report(doc, "figures/rollout_mae.png" if figures else None, band_fig))
         write_json(tmp / "evaluation.json", doc)
     if track:
         from ..shipped import vehicle_file
@@ -328,6 +343,13 @@ def held_out_models(vehicle, diag_out, out_dir: Path) -> tuple[list[str], list[s
     add({**one, "effects": one_step}, "extended_physical.yaml" if remainder else "extended_vehicle.yaml", "extended")
     if doc.get("refine"):
         add(raw, "refined_physical.yaml", "physical (refined)")
+        from ..bands import SUFFIX, parameter_block
+
+        band = parameter_block(doc["refine"])  # its Monte Carlo band's source, beside it (qr.bands)
+        if band is not None:
+            from ..atomic import write_json
+
+            write_json(out_dir / f"refined_physical{SUFFIX}", band)
     if remainder:  # the remainder was fitted against the equation-error model
         add({**one, "effects": one_step, "torque_remainder": remainder}, "extended_vehicle.yaml", "hybrid")
     return models, labels

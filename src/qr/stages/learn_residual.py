@@ -27,7 +27,8 @@ import numpy as np
 from ..errors import QrInputError
 from .sweep_callback import SweepCallback
 
-OUTPUTS = ("hybrid_vehicle.yaml", "residual.npz", "training.json", "report.md", "figures/")
+OUTPUTS = ("hybrid_vehicle.yaml", "residual.npz", "training.json", "report.md", "figures/",
+           "hybrid_vehicle.bands.json", "members/")
 SCHEMA = "qr.residual/1"
 JOB = "learn_residual"  # Hydra's job name for this stage's multiruns (the task's module)
 SWEEP_CSV = "sweep.csv"
@@ -115,7 +116,20 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     blocks = rf.validation_blocks(parts, {"vehicle": physical, "hybrid": hybrid}, rcfg.horizon)
     doc = _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estimate_s, veh)
     doc["residual_size"] = training_size(res, parts, rcfg.horizon, physical)
-    _write(out, force, physical, res, doc, say)
+    members = None
+    if rcfg.members:
+        from .. import ensemble
+
+        t1 = time.perf_counter()
+        members = ensemble.train_members(rcfg, veh, parts, split["training"], seed, rcfg.members, say)
+        scale, where = ensemble.calibrated(physical, hybrid, members, parts, ecfg.horizon)
+        members = (members, scale, where)
+        doc["ensemble"] = {"members": rcfg.members, "file": ensemble.BANDS_FILE, "scale": scale,
+                           "scale_horizon": ecfg.horizon,
+                           "calibrated_on": where, "wall_s": time.perf_counter() - t1,
+                           "resampled": "by flight" if split["by"] != "time" else
+                           "not resampled: one flight (members differ by their seeds)"}
+    _write(out, force, physical, res, doc, say, members)
     if track:
         _track(run_name, parent_id, doc, out, trained.net, [*flights, vehicle])
     say(f"wrote {out}/hybrid_vehicle.yaml ({trained.wall_s:.0f} s of training, best epoch {trained.best_epoch})")
@@ -245,7 +259,7 @@ def _document(flights, vehicle, plain, rcfg, seed, split, trained, blocks, estim
     }
 
 
-def _write(out: Path, force: bool, physical, res, doc: dict, say) -> None:
+def _write(out: Path, force: bool, physical, res, doc: dict, say, members=None) -> None:
     from .. import residual as rs
     from ..atomic import atomic_dir, write_json, write_text
     from ..vehicle import load_vehicle, save_vehicle
@@ -260,6 +274,10 @@ def _write(out: Path, force: bool, physical, res, doc: dict, say) -> None:
                   f": {doc['vehicle']} plus a learned wrench (residual.npz)")
         save_vehicle(raw, tmp / "hybrid_vehicle.yaml", header=header)
         load_vehicle(tmp / "hybrid_vehicle.yaml")  # what was written loads (weights, shapes, scaling)
+        if members is not None:
+            from .. import ensemble
+
+            ensemble.write(tmp, *members, note, doc["ensemble"]["scale_horizon"])
         (tmp / "figures").mkdir()
         curve_figure(doc, tmp / "figures" / "training_curve.png")
         write_text(tmp / "report.md", report(doc))
