@@ -125,12 +125,13 @@ _QC_HALF = 0.5 * _QC  # exact: a power of two
 _PARTS = (3, 3, 4, 3)  # p, v, q, ω in a state
 _G = torch.tensor([0.0, 0.0, G], dtype=DTYPE)
 _XY = torch.tensor([1.0, 1.0, 0.0], dtype=DTYPE)
+_EZ = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=DTYPE)
 
 
 def rotation(q: torch.Tensor) -> torch.Tensor:
     """Rotation matrices (..., 3, 3) body → world of quaternions (..., 4), scalar first."""
     qq = (q[..., :, None] * q[..., None, :]).flatten(-2)
-    return (qq @ _RM + _RE).unflatten(-1, (3, 3))
+    return torch.addmm(_RE, qq, _RM).unflatten(-1, (3, 3)) if qq.dim() == 2 else (qq @ _RM + _RE).unflatten(-1, (3, 3))
 
 
 def _on(P: torch.Tensor, *slots) -> bool:
@@ -266,7 +267,8 @@ class Plant:
 
     def _accels(self, p, v, q, w, d):
         R = rotation(q)
-        v_b = (v[:, None, :] @ R).squeeze(1)  # Rᵀ v
+        # [v; e_z]ᵀ R in one product: Rᵀ v and R's third row (Rᵀ e_z, minus the gravity direction g_b)
+        v_b, Rz = (torch.cat([v[:, None, :], _EZ.expand(len(v), 1, 3)], 1) @ R).unbind(1)
         T, u = d.T, d.u
         f = None
         if self.lin_on:
@@ -278,7 +280,7 @@ class Plant:
         if self.rdrag_on:
             f = (0.0 if f is None else f) - self.rdrag * d.usum * v_b
         if self.ground:  # the ground effect where the vehicle has one (the compiled plant skips it at k = 0)
-            h = p[:, 2:3] + R[:, 2, :] @ self.marker[:, None] - self.gz
+            h = p[:, 2:3] + Rz @ self.marker[:, None] - self.gz
             T = T + self.ge * T / torch.clamp(h, min=MIN_GROUND_HEIGHT) ** 2
         fT = torch.nn.functional.pad(T, (2, 0))
         f = fT if f is None else f + fT
@@ -299,11 +301,11 @@ class Plant:
         if self.rem is not None:  # the learned torque remainder (qr.torque_remainder), a linear map
             t = t + (torch.cat([v_b, w], -1) @ self.rem[:6] + d.rem)
         if self.net is not None:
-            r = self.net(v_b, w, R[:, 2, :], d.net)
+            r = self.net(v_b, w, Rz, d.net)
             f = f + r[:, :3]
             t = t + r[:, 3:]
         elif self.residual is not None:
-            r = self.residual.wrench(v_b, w, -R[:, 2, :], u)  # g_b = Rᵀ (0, 0, −1)
+            r = self.residual.wrench(v_b, w, -Rz, u)  # g_b = Rᵀ (0, 0, −1)
             f = f + r[:, :3]
             t = t + r[:, 3:]
         a = (R @ f[:, :, None]).squeeze(2)
