@@ -74,14 +74,39 @@ def make_flights(folder: Path, n: int, duration: float, rate: float) -> tuple[li
     return paths, folder / "flight01" / "vehicle.yaml"
 
 
-def cold_run(flights: list[Path], vehicle: Path, out: Path, overrides: list[str]) -> float:
-    """``qr learn residual`` in a fresh interpreter with the defaults (plus ``overrides``); its wall clock."""
+def cold_run(flights: list[Path], vehicle: Path, out: Path, overrides: list[str]) -> tuple[float, list]:
+    """``qr learn residual`` in a fresh interpreter with the defaults (plus ``overrides``): its wall clock,
+    and its log lines with the second each arrived (kept in ``<dir>/learn.log``)."""
     cmd = [*QR, "learn", "residual", *map(str, flights), "--vehicle", str(vehicle), "--out", str(out), "--force",
            *overrides]
     env = {k: v for k, v in os.environ.items() if not k.startswith(("OMP_", "OPENBLAS_", "MKL_"))}
+    env["PYTHONUNBUFFERED"] = "1"
+    lines = []
     t0 = time.perf_counter()
-    subprocess.run(cmd, check=True, cwd=out.parent, env=env, stderr=subprocess.DEVNULL)
-    return time.perf_counter() - t0
+    with subprocess.Popen(cmd, cwd=out.parent, env=env, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                          text=True) as proc:
+        for line in proc.stderr:
+            lines.append((time.perf_counter() - t0, line.rstrip()))
+    wall = time.perf_counter() - t0
+    (out.parent / "learn.log").write_text("".join(f"{t:8.1f} s  {m}\n" for t, m in lines))
+    if proc.returncode:
+        raise SystemExit(f"qr learn residual failed ({proc.returncode}): see {out.parent / 'learn.log'}")
+    return wall, lines
+
+
+def phases(lines: list, wall: float) -> None:
+    """Start-up, filtering, training and the end (validation table, files, MLflow) from the log's times."""
+    def first(word):
+        return next((t for t, m in lines if word in m), None)
+
+    est, windows, last_epoch, wrote = first("estimates of"), first("validation windows of"), None, first("wrote ")
+    epochs = [t for t, m in lines if "qr learn residual: epoch " in m]
+    last_epoch = epochs[-1] if epochs else None
+    if None in (est, windows, last_epoch, wrote):
+        return
+    print(f"  from the log: start-up and imports {est:.1f} s; filtering and windows {windows - est:.1f} s; "
+          f"training {last_epoch - windows:.1f} s; validation table, files and MLflow {wrote - last_epoch:.1f} s; "
+          f"exit {wall - wrote:.1f} s")
 
 
 def breakdown(doc: dict, wall: float) -> None:
@@ -137,12 +162,13 @@ def main():
         if out.exists():
             shutil.rmtree(out)
         load0 = os.getloadavg()[0]
-        wall = cold_run(flights, vehicle, out, a.overrides)
+        wall, lines = cold_run(flights, vehicle, out, a.overrides)
         load1 = os.getloadavg()[0]
         print(f"\nqr learn residual, {a.flights} flights, defaults{' + ' + ' '.join(a.overrides) if a.overrides else ''}, "
               f"cold shell: {wall:.1f} s wall ({wall / 60:.1f} min; goal <= 5 min on 2 cores); "
               f"load average {load0:.1f} before, {load1:.1f} after")
         breakdown(json.loads((out / "training.json").read_text()), wall)
+        phases(lines, wall)
     if a.profile:
         profile(flights, vehicle, a.dir / "profiled", a.overrides)
 
