@@ -17,6 +17,7 @@ import resource
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -38,8 +39,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=3)
     runs = ap.parse_args().runs
-    cached = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
-    uncached = {**cached, "PYTHONDONTWRITEBYTECODE": "1"}
+    cached = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")}
+    # Python still reads the bytecode an earlier process left; an empty cache folder stands for an install none
+    # was ever written to
+    uncached = {**cached, "PYTHONDONTWRITEBYTECODE": "1", "PYTHONPYCACHEPREFIX": tempfile.mkdtemp()}
     print(f"{'command':32s} {'wall s':>7s} {'CPU s':>6s}   {'no bytecode kept: wall s':>24s} {'CPU s':>6s}")
     for cmd in COMMANDS:
         once(cmd, cached)  # the bytecode written once, as the first run after an install does
