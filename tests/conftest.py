@@ -27,6 +27,9 @@ def pytest_collection_modifyitems(config, items):
     (pytest 9.2 with xdist 3.8 did), every worker would run it again: refuse rather than pay twice."""
     if not getattr(config.option, "loadgroup", False):  # set on each worker under --dist loadgroup
         return
+    # The longest first (xdist hands out the groups, largest first, then single tests in this order): the tests
+    # marked slow start at once, so that the two workers end together instead of one finishing them alone.
+    items.sort(key=lambda i: i.get_closest_marker("slow") is None)
     ungrouped = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
     if ungrouped:
         raise pytest.UsageError(f"--dist loadgroup did not group {ungrouped[0]} (pytest/pytest-xdist "

@@ -27,14 +27,16 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
-import pandas as pd
 
 from .dynamics import residuals
 from .errors import QrInputError
 from .frames import rot_to_quat
+
+if TYPE_CHECKING:  # pandas is imported where a table is made or read: the split settings (SPLITS) are read by
+    import pandas as pd  # every Hydra command
 
 _XYZ = ("x", "y", "z")
 _ROT = ("1", "2", "3", "4")
@@ -141,6 +143,8 @@ def flight_table(states: pd.DataFrame, vehicle, flight: str) -> pd.DataFrame:
     y = residuals(s, vehicle)
     for j, name in enumerate(target_columns("f_a") + target_columns("tau_a")):
         cols[name] = y[:, j]
+    import pandas as pd
+
     df = pd.DataFrame(cols)
     return df[np.isfinite(df.drop(columns="flight").to_numpy()).all(axis=1)].reset_index(drop=True)
 
@@ -150,6 +154,8 @@ def build_table(states: dict, vehicle) -> pd.DataFrame:
     parts = [flight_table(df, vehicle, name) for name, df in states.items()]
     if not parts:
         raise QrInputError(None, "no flights given to build a learning table", "list filtered flights")
+    import pandas as pd
+
     return pd.concat(parts, ignore_index=True)
 
 
@@ -176,6 +182,8 @@ def check_dataset(path) -> Path:
 def read_table(path, vehicle=None) -> pd.DataFrame:
     """A learning table; or one built from the state table ``qr filter`` writes (labels with ``vehicle``:
     a :class:`qr.vehicle.Vehicle`, a vehicle file or a shipped vehicle's name)."""
+    import pandas as pd
+
     from .states import COLUMNS as STATE_COLUMNS
 
     path = check_dataset(path)

@@ -19,20 +19,21 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numba as nb
 import numpy as np
-import pandas as pd
 
 from .allowed import check_fields, check_known, setting
-from .conventions import CHECKS
 from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
 from .holdout import SplitConfig
 from .sim.plant import (N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv,
                         true_params)
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
+
+if TYPE_CHECKING:  # (annotations only: the config group's settings, read by every Hydra command, need no pandas)
+    import pandas as pd
 
 DEFAULTS_FILE = "src/qr/rollout.py"
 QUANTITIES = ("p", "v", "R", "w")  # position (m), velocity (m/s), rotation angle (rad), body rate (rad/s)
@@ -293,6 +294,12 @@ def at(block: dict, h: int, q: str):
 
 # ---- settings (config group `evaluate`), the scored pieces of a segment, the Markdown table ----
 
+def _checks() -> list[str]:
+    from .conventions import CHECKS
+
+    return list(CHECKS)
+
+
 @dataclass
 class BandsConfig:
     """``evaluate.bands``: the uncertainty band of each model that has a source (qr.bands)."""
@@ -320,7 +327,7 @@ class EvaluateConfig:
     max_input_gap: int = setting(2, "integer", ge=0)
     trim_s: float = setting(0.5, ge=0)  # filter start-up and end dropped from each flight (as qr diagnose's)
     # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
-    skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
+    skip_checks: list[str] = setting(kind="names", names=_checks, default_factory=list)
     # the held-out protocol's split of a set's flights (qr.holdout: repeat | trajectory | speed)
     split: SplitConfig = field(default_factory=SplitConfig)
     # the flights the scored models were trained on: each window is checked against their envelope

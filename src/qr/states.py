@@ -18,11 +18,15 @@ and keep extra columns; readers ignore what they do not know.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from .effects import Signals
 from .frames import quat_to_rot, to_body
+
+if TYPE_CHECKING:  # (annotations only)
+    import pandas as pd
 
 POSITION = ["px", "py", "pz"]
 VELOCITY = ["vx", "vy", "vz"]

@@ -25,6 +25,7 @@ def test_help_lists_every_command_with_an_example(capsys):
         assert needed in text
 
 
+@pytest.mark.slow  # ~30 processes
 def test_every_stage_runs_as_qr_stage_and_as_python_m(tmp_path):
     """``python -m qr.<stage> ARGS`` is ``qr <stage> ARGS`` for each of the seven stages (``python -m
     qr.train`` is ``qr learn``): the same help, the same one-line user error and exit 2; the Hydra

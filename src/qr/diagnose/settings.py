@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, fields
 from typing import ClassVar
 
 from ..allowed import check_fields, check_known, setting, show
-from ..conventions import CHECKS
 from ..effects import CATALOG, MAX_DELAY_S
 from ..errors import QrInputError
 from ..estimation.settings import DIAGNOSIS_FILTER
@@ -27,6 +26,12 @@ REFINE_BEYOND = ("auto", "hold", "bound")  # diagnose.refine_beyond
 
 def _catalog() -> list[str]:
     return list(CATALOG)
+
+
+def _checks() -> list[str]:
+    from ..conventions import CHECKS
+
+    return list(CHECKS)
 
 
 def _leaking_groups() -> dict[str, str]:
@@ -69,7 +74,7 @@ class DiagnoseConfig:
     slow_torque_horizon: int = setting(50, "integer", ge=0)
     slow_torque_min_gain: float = setting(0.05, ge=0, le=1)
     # convention checks (qr.conventions) a user who knows the log better turns off, e.g. [rotor_layout]
-    skip_checks: list[str] = setting(kind="names", names=lambda: list(CHECKS), default_factory=list)
+    skip_checks: list[str] = setting(kind="names", names=_checks, default_factory=list)
     # rollout: refine the named effects' parameters and the vehicle's J, C_T, C_Q and a delay by the
     # evaluate protocol's multi-step error on the training part (qr.diagnose.refine); none: off
     refine: str = setting("none", "one", names=lambda: list(REFINE_MODES))

@@ -32,8 +32,8 @@ from ..atomic import atomic_path
 from ..errors import QrInputError
 from ..parallel import thread_map
 from ..segments import flight_segments
-from . import TUNED_NIS_NOTE, estimate, tuned_noise
 from .matched import add_matched_rotor_signals
+from .pipeline import TUNED_NIS_NOTE, estimate, tuned_noise
 from .settings import resolve
 from .tuning import ORDER, corner_hz
 

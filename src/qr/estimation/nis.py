@@ -13,7 +13,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv  # chi2.ppf's own kernel: scipy.stats costs a quarter second more
 
 
 @dataclass
@@ -27,6 +26,8 @@ class Innovations:
 
 def _chi2_ppf(q, k):
     """The chi-square quantile (``scipy.stats.chi2.ppf``) of ``k`` degrees of freedom."""
+    from scipy.special import gammaincinv  # chi2.ppf's own kernel: scipy.stats costs a quarter second more
+
     return 2.0 * gammaincinv(k / 2.0, q)
 
 

@@ -20,10 +20,6 @@ from ..atomic import atomic_path, write_json
 from ..config import compose, hydra_app, to_dict
 from ..shipped import vehicle_file as find_vehicle
 from ..errors import QrInputError
-from ..estimation import estimate
-from ..estimation.crossfit import airborne_tuning, fixed_settings, segment_estimates, write_segment_estimates
-from ..flight import read_flight
-from ..vehicle import load_vehicle
 
 
 def nis_path(out: str | Path) -> Path:
@@ -57,6 +53,11 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     cross-fitting halves (:func:`qr.estimation.crossfit.segment_estimates`), which the diagnoses read
     instead of filtering the flight again.
     """
+    from ..estimation import estimate
+    from ..estimation.crossfit import airborne_tuning, fixed_settings, segment_estimates, write_segment_estimates
+    from ..flight import read_flight
+    from ..vehicle import load_vehicle
+
     flight_path = Path(flight_path)
     name = name or flight_path.stem
     flight = read_flight(flight_path)
@@ -138,6 +139,7 @@ def figures(flight_path, states_path, outdir, title: str = "", vehicle_file=None
     import pandas as pd
 
     from ..estimation.plots import filtered_vs_raw
+    from ..flight import read_flight
     from ..vehicle import load_vehicle
 
     unit = load_vehicle(vehicle_file).rotor_speed_unit if vehicle_file else None

@@ -34,14 +34,17 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .. import datasets
 from ..errors import QrInputError
 
 from .sweep_callback import SweepCallback
+
+if TYPE_CHECKING:  # pandas where a table is read or made: `qr learn --help` needs none
+    import pandas as pd
 
 STAGE = "learn"
 PARENT_FILE = ".mlflow_parent"
@@ -178,6 +181,7 @@ def _log_mlflow_model(tracked, model, X_example) -> None:
 
         requirements = [f"torch=={torch.__version__.split('+')[0]}"]
     else:
+        import pandas as pd
         import sklearn
 
         requirements = [f"scikit-learn=={sklearn.__version__}"] + ([f"qr=={__version__}"] if model.kind == "gpr" else [])
@@ -260,6 +264,8 @@ def main() -> None:
 
 def collect(out) -> pd.DataFrame:
     """One row per run record in ``<out>/runs/*.json`` (row order, then name)."""
+    import pandas as pd
+
     rows = []
     for p in sorted(Path(out, "runs").glob("*.json")):
         r = json.loads(p.read_text())
@@ -361,6 +367,8 @@ class LearnSweep(SweepCallback):
     def on_multirun_end(self, config, **kwargs) -> None:
         if self._cm is None:
             return
+        import pandas as pd
+
         from ..atomic import atomic_path
 
         self._stop_progress()
@@ -395,6 +403,8 @@ class LearnSweep(SweepCallback):
 def copy_best(runs_csv, dest) -> pd.Series:
     """Copy the saved model of the sweep's best non-leaking run to ``dest`` (replaced atomically)."""
     import shutil
+
+    import pandas as pd
 
     from ..atomic import atomic_dir
     
