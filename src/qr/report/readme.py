@@ -257,6 +257,7 @@ def generalization_section(df: pd.DataFrame, cfg: Config) -> list[str]:
 # goals the project set itself (docs/evaluate.md, docs/replay.md), each line stating its numbers
 PHYSICAL_GOAL = 1.0  # the refined physical model at most rate_frozen's error on p, v, R and ω
 HYBRID_GOAL = 0.7  # the rollout-trained hybrid, and never worse than the physical model under it
+COVERAGE_GOAL = (0.80, 0.97)  # the 90 % band's share of held-out samples it covers at h = 50 (qr.bands)
 QUANTITY_NAMES = {"p": "p", "v": "v", "R": "R", "w": "ω"}
 
 
@@ -276,9 +277,14 @@ def _goal_line(what: str, results: list[tuple[str, bool, str]]) -> str:
 def generalization_goals(df: pd.DataFrame) -> list[str]:
     """The goals on the hold-outs that fly new trajectories (splits ``trajectory`` and ``speed``)."""
     new = df[df["split"].astype(str).isin(["trajectory", "speed"])]
-    phys, hyb = [], []
+    phys, hyb, cover = [], [], []
     for (s, split, held), g in new.groupby(["set", "split", "held_out"], sort=False):
         where = f"{s} {held} (`{split}`)"
+        for _, r in g.iterrows():
+            c = _num(r.get("coverage90"))
+            if math.isfinite(c):
+                cover.append((f"{where}, {r['model']}", COVERAGE_GOAL[0] <= c <= COVERAGE_GOAL[1],
+                              f"{_g(100 * c, 3)} %"))
         p = g[g["model"].astype(str).str.contains("physical")]
         h = g[g["model"].astype(str).str.contains("rollout-trained")]
         if len(p):
@@ -302,6 +308,10 @@ def generalization_goals(df: pd.DataFrame) -> list[str]:
     if hyb:
         out.append(_goal_line(f"the rollout-trained hybrid ≤ {HYBRID_GOAL:g} × `rate_frozen` on all four and never "
                               "worse than the physical model under it", hyb))
+    if cover:
+        lo, hi = (round(100 * x) for x in COVERAGE_GOAL)
+        out.append(_goal_line(f"the 90 % band covers {lo}–{hi} % of the held-out samples", cover)
+                   .replace(" hold-outs", " banded models on hold-outs", 1))
     return out + ([""] if out else [])
 
 
