@@ -12,8 +12,8 @@ says so.  The members are therefore a bootstrap fine-tune around the trained net
 trainings: their spread measures how far a few epochs on another draw of the flights move it, and the band's
 scale (calibrated on the validation flights, :func:`calibrated`) sets the width.
 
-Members train in ``learn.member_jobs`` processes at once (spawned, one torch and one numba thread each;
-0: :func:`jobs`).
+Members train in ``learn.member_jobs`` processes at once (fresh interpreters, one torch and one numba thread
+each; 0: :func:`jobs`).
 A member's weights depend only on its seed, its draw and the data: the same bytes serially or in parallel,
 and no member touches the process's random state (the hybrid's training is unchanged by them).
 
@@ -85,37 +85,30 @@ def jobs(setting: int, members: int, estimate_s: float = math.inf) -> int:
     return max(1, min(n, members))
 
 
-_WORK: dict = {}  # a worker's shared inputs (set once per process by _init)
+THREADS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
 
 
-def _init(payload: str) -> None:
-    """A worker's start: one thread for torch and numba (2 cores, 2 workers), then the shared inputs from the
-    file ``payload`` (a file, not the start-up pipe: a worker that dies before reading megabytes from the pipe
-    would leave the parent blocked writing them)."""
-    import os
+def worker(inputs: str, folder: str, ks: str) -> None:
+    """A member process (:func:`train_members` starts it with one thread each): the members ``ks``
+    (comma-separated, 0-based) from the pickled ``inputs``, each written to ``folder/member<k>.pickle``."""
     import pickle
     from pathlib import Path
 
-    for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-        os.environ[k] = "1"
+    from .atomic import atomic_path
+
+    work = pickle.loads(Path(inputs).read_bytes())
+    for k in map(int, ks.split(",")):
+        with atomic_path(Path(folder) / f"member{k}.pickle") as tmp:  # appears whole or not at all
+            tmp.write_bytes(pickle.dumps(_member(k, work), protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _member(k: int, w: dict):
+    """Member ``k`` (0-based) from the inputs ``w``: a :class:`Member`, or the error's parts."""
     import torch
 
-    torch.set_num_threads(1)
-    _WORK.update(pickle.loads(Path(payload).read_bytes()))
-    import numba
-
-    numba.set_num_threads(1)
-
-
-def _member(k: int, work: dict | None = None):
-    """Member ``k`` (0-based) from ``work`` (else the inputs :func:`_init` holds): a :class:`Member`, or the
-    error's parts."""
     from .errors import QrInputError
     from .residual_fit import train
 
-    import torch
-
-    w = _WORK if work is None else work
     draw = resample(w["training"], w["seed"], k)
     try:
         with torch.random.fork_rng(devices=[]):  # building the network draws its discarded initial weights
@@ -140,16 +133,51 @@ def train_members(cfg, start, parts: list, training: list[str], seed: int, membe
     if n == 1:
         work = pickle.loads(payload)  # the inputs exactly as a worker sees them
         return [_done(_member(k, work), k, members, training, log) for k in range(members)], n
-    import multiprocessing
+    # fresh interpreters (not multiprocessing: a spawned worker re-runs an unguarded main script, as Snakemake's
+    # `script:` is), one thread each; the inputs and results go through files
+    import os
+    import subprocess
+    import sys
     import tempfile
-    from concurrent.futures import ProcessPoolExecutor
+    import time
     from pathlib import Path
 
+    src = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, **dict.fromkeys(THREADS_ENV, "1"),
+           "PYTHONPATH": os.pathsep.join([src, *filter(None, [os.environ.get("PYTHONPATH")])])}
+    code = "import sys; from qr.ensemble import worker; worker(*sys.argv[1:])"
+    from .atomic import atomic_path
+
     with tempfile.TemporaryDirectory(prefix="qr-members-") as d:
-        (Path(d) / "inputs.pickle").write_bytes(payload)
-        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("spawn"), initializer=_init,
-                                 initargs=(str(Path(d) / "inputs.pickle"),)) as pool:
-            return [_done(r, k, members, training, log) for k, r in enumerate(pool.map(_member, range(members)))], n
+        folder = Path(d)
+        with atomic_path(folder / "inputs.pickle") as tmp:
+            tmp.write_bytes(payload)
+        procs, errs = [], []
+        try:
+            for j in range(n):
+                errs.append(tempfile.TemporaryFile())
+                procs.append(subprocess.Popen(
+                    [sys.executable, "-c", code, str(folder / "inputs.pickle"), d,
+                     ",".join(map(str, range(j, members, n)))], env=env, stdout=subprocess.DEVNULL, stderr=errs[j]))
+            out = []
+            for k in range(members):
+                done, proc = folder / f"member{k}.pickle", procs[k % n]
+                while not done.exists():
+                    if proc.poll() is not None and not done.exists():
+                        errs[k % n].seek(0)
+                        tail = errs[k % n].read().decode(errors="replace").strip().splitlines()[-3:]
+                        raise RuntimeError(f"the process training ensemble member {k + 1} ended ({proc.returncode}) "
+                                           f"without it: {' | '.join(tail)}")
+                    time.sleep(0.2)
+                out.append(_done(pickle.loads(done.read_bytes()), k, members, training, log))
+            return out, n
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                proc.wait()
+            for err in errs:
+                err.close()
 
 
 def _done(r, k: int, members: int, training: list[str], log) -> Member:
