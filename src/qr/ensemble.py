@@ -24,7 +24,7 @@ itself is unchanged)::
     hybrid_vehicle.bands.json    {"schema": "qr.bands/1", "kind": "ensemble",
                                   "members": [{"residual": <the vehicle key `residual` of that member, its
                                                model relative to this file>, "seed", "flights": {flight: times
-                                               drawn}, "best_epoch"}, ...],
+                                               drawn}, "best_epoch", "epochs_run"}, ...], "start": how they began,
                                   "scale": {"p", "v", "R", "w"}, "horizon": H (the h the scale was chosen at),
                                   "calibrated_on": "..."}
 """
