@@ -1,12 +1,21 @@
 """A residual ensemble for ``qr learn residual``'s band (``learn.members``; :mod:`qr.bands`).
 
-Each member is a residual trained like the hybrid's own (:func:`qr.residual_fit.train`, same settings and
-validation windows) on the training flights *resampled by flight*: as many flights as there are, drawn
-with replacement, each drawn flight bringing all of its training windows (a flight drawn twice counts
-twice: its windows enter the member's training set twice, it stays one flight); the validation flights
-are never drawn.  Member k draws its flights from ``numpy.random.default_rng([seed, k])`` and trains with
-seed ``seed + 1 + k``.  A lone flight (validation by time) cannot be resampled by flight: its members
-differ by their seeds only, and the band says so.
+Each member starts from the trained hybrid's residual and is fine-tuned (:func:`qr.residual_fit.train`,
+the hybrid's settings and validation windows, at most ``learn.member_epochs`` epochs, ``learn.patience``,
+keeping its best validation epoch but never the start itself) on the training flights *resampled by
+flight*: as many flights as there are, drawn with replacement, each drawn flight bringing all of its
+training windows (a flight drawn twice counts twice: its windows enter the member's training set twice, it
+stays one flight); the validation flights are never drawn.  Member k draws its flights from
+``numpy.random.default_rng([seed, k])`` and shuffles with seed ``seed + 1 + k``.  A lone flight
+(validation by time) cannot be resampled by flight: its members differ by their seeds only, and the band
+says so.  The members are therefore a bootstrap fine-tune around the trained network, not independent
+trainings: their spread measures how far a few epochs on another draw of the flights move it, and the band's
+scale (calibrated on the validation flights, :func:`calibrated`) sets the width.
+
+Members train in ``learn.member_jobs`` processes at once (fresh interpreters, one torch and one numba thread
+each; 0: :func:`jobs`).
+A member's weights depend only on its seed, its draw and the data: the same bytes serially or in parallel,
+and no member touches the process's random state (the hybrid's training is unchanged by them).
 
 The files, beside ``hybrid_vehicle.yaml`` (an addition to docs/spec/hybrid.md's outputs; the hybrid
 itself is unchanged)::
@@ -15,13 +24,14 @@ itself is unchanged)::
     hybrid_vehicle.bands.json    {"schema": "qr.bands/1", "kind": "ensemble",
                                   "members": [{"residual": <the vehicle key `residual` of that member, its
                                                model relative to this file>, "seed", "flights": {flight: times
-                                               drawn}, "best_epoch"}, ...],
+                                               drawn}, "best_epoch", "epochs_run"}, ...], "start": how they began,
                                   "scale": {"p", "v", "R", "w"}, "horizon": H (the h the scale was chosen at),
                                   "calibrated_on": "..."}
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, replace
 
@@ -29,6 +39,8 @@ import numpy as np
 
 MEMBERS_DIR = "members"
 BANDS_FILE = "hybrid_vehicle.bands.json"
+START = ("warm: each member fine-tuned from the trained network on its resample of the flights (a bootstrap "
+         "fine-tune; the spread around the network, its width set by the validation scale)")
 
 
 @dataclass(frozen=True)
@@ -37,6 +49,7 @@ class Member:
     seed: int
     flights: dict  # flight -> times drawn
     best_epoch: int
+    epochs_run: int = 0
 
 
 def resample(flights: list[str], seed: int, k: int) -> dict:
@@ -59,19 +72,122 @@ def member_pieces(parts: list, draw: dict) -> list:
     return out
 
 
-def train_members(cfg, vehicle, parts: list, training: list[str], seed: int, members: int,
-                  log=lambda m: None) -> list[Member]:
-    """``members`` residuals, each on the ``training`` flights resampled by flight (see the module doc)."""
+PARALLEL_FROM_S = 30.0  # learn.member_jobs=0 trains members serially when they would take less (a process
+#                         costs a few seconds to start: torch and qr imported again)
+
+
+def jobs(setting: int, members: int, estimate_s: float = math.inf) -> int:
+    """Processes for ``members`` members: ``learn.member_jobs``; 0: min(2, cores), or 1 when the members'
+    serial time (``estimate_s``) is under :data:`PARALLEL_FROM_S`.  The members' bytes do not depend on it."""
+    import os
+
+    n = setting or (min(2, os.cpu_count() or 1) if estimate_s >= PARALLEL_FROM_S else 1)
+    return max(1, min(n, members))
+
+
+THREADS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")
+
+
+def worker(inputs: str, folder: str, ks: str) -> None:
+    """A member process (:func:`train_members` starts it with one thread each): the members ``ks``
+    (comma-separated, 0-based) from the pickled ``inputs``, each written to ``folder/member<k>.pickle``."""
+    import pickle
+    from pathlib import Path
+
+    from .atomic import atomic_path
+
+    work = pickle.loads(Path(inputs).read_bytes())
+    for k in map(int, ks.split(",")):
+        with atomic_path(Path(folder) / f"member{k}.pickle") as tmp:  # appears whole or not at all
+            tmp.write_bytes(pickle.dumps(_member(k, work), protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _member(k: int, w: dict):
+    """Member ``k`` (0-based) from the inputs ``w``: a :class:`Member`, or the error's parts."""
+    import torch
+
+    from .errors import QrInputError
     from .residual_fit import train
 
-    out = []
-    for k in range(members):
-        draw = resample(training, seed, k)
-        log(f"ensemble member {k + 1} of {members}: {sum(draw.values())} flights drawn "
-            f"({len(draw)} distinct of {len(training)})")
-        t = train(cfg, vehicle, member_pieces(parts, draw), seed + 1 + k, lambda m: None)
-        out.append(Member(t.net.to_residual(), seed + 1 + k, draw, t.best_epoch))
-    return out
+    draw = resample(w["training"], w["seed"], k)
+    try:
+        with torch.random.fork_rng(devices=[]):  # building the network draws its discarded initial weights
+            t = train(w["cfg"], w["start"], member_pieces(w["parts"], draw), w["seed"] + 1 + k, keep_start=False)
+    except QrInputError as e:  # its own arguments: the exception does not pickle back as it is
+        return ("error", e.path, e.problem, e.fix)
+    return Member(t.net.to_residual(), w["seed"] + 1 + k, draw, t.best_epoch, len(t.epochs))
+
+
+def train_members(cfg, start, parts: list, training: list[str], seed: int, members: int,
+                  log=lambda m: None, epoch_s: float = math.inf) -> tuple[list[Member], int]:
+    """``members`` residuals fine-tuned from ``start`` (the vehicle with the trained residual), each on the
+    ``training`` flights resampled by flight (see the module doc), and the processes that trained them
+    (:func:`jobs`; ``epoch_s``: the network's seconds per epoch, for the estimate)."""
+    import pickle
+
+    n = jobs(cfg.member_jobs, members, epoch_s * cfg.member_epochs * members)
+    payload = pickle.dumps({"cfg": replace(cfg, epochs=cfg.member_epochs), "start": start, "parts": parts,
+                            "training": training, "seed": seed}, protocol=pickle.HIGHEST_PROTOCOL)
+    log(f"ensemble: {members} members fine-tuned from the trained network (at most {cfg.member_epochs} "
+        f"epoch(s) each) in {n} process(es)")
+    if n == 1:
+        work = pickle.loads(payload)  # the inputs exactly as a worker sees them
+        return [_done(_member(k, work), k, members, training, log) for k in range(members)], n
+    # fresh interpreters (not multiprocessing: a spawned worker re-runs an unguarded main script, as Snakemake's
+    # `script:` is), one thread each; the inputs and results go through files
+    import os
+    import subprocess
+    import sys
+    import tempfile
+    import time
+    from pathlib import Path
+
+    src = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, **dict.fromkeys(THREADS_ENV, "1"),
+           "PYTHONPATH": os.pathsep.join([src, *filter(None, [os.environ.get("PYTHONPATH")])])}
+    code = "import sys; from qr.ensemble import worker; worker(*sys.argv[1:])"
+    from .atomic import atomic_path
+
+    with tempfile.TemporaryDirectory(prefix="qr-members-") as d:
+        folder = Path(d)
+        with atomic_path(folder / "inputs.pickle") as tmp:
+            tmp.write_bytes(payload)
+        procs, errs = [], []
+        try:
+            for j in range(n):
+                errs.append(tempfile.TemporaryFile())
+                procs.append(subprocess.Popen(
+                    [sys.executable, "-c", code, str(folder / "inputs.pickle"), d,
+                     ",".join(map(str, range(j, members, n)))], env=env, stdout=subprocess.DEVNULL, stderr=errs[j]))
+            out = []
+            for k in range(members):
+                done, proc = folder / f"member{k}.pickle", procs[k % n]
+                while not done.exists():
+                    if proc.poll() is not None and not done.exists():
+                        errs[k % n].seek(0)
+                        tail = errs[k % n].read().decode(errors="replace").strip().splitlines()[-3:]
+                        raise RuntimeError(f"the process training ensemble member {k + 1} ended ({proc.returncode}) "
+                                           f"without it: {' | '.join(tail)}")
+                    time.sleep(0.2)
+                out.append(_done(pickle.loads(done.read_bytes()), k, members, training, log))
+            return out, n
+        finally:
+            for proc in procs:
+                if proc.poll() is None:
+                    proc.kill()
+                proc.wait()
+            for err in errs:
+                err.close()
+
+
+def _done(r, k: int, members: int, training: list[str], log) -> Member:
+    from .errors import QrInputError
+
+    if isinstance(r, tuple):
+        raise QrInputError(r[1], f"ensemble member {k + 1}: {r[2]}", r[3])
+    log(f"ensemble member {k + 1} of {members}: {sum(r.flights.values())} flights drawn ({len(r.flights)} distinct "
+        f"of {len(training)}), best epoch {r.best_epoch} of {r.epochs_run}")
+    return r
 
 
 def calibrated(physical, centre, members: list[Member], parts: list, H: int) -> tuple[dict | None, str]:
@@ -103,8 +219,9 @@ def write(tmp, members: list[Member], scale, where: str, note: str, horizon: int
         name = f"{MEMBERS_DIR}/member{k}.npz"
         rs.save_weights(m.residual, tmp / name)
         docs.append({"residual": rs.block(m.residual, name, f"{note}; ensemble member {k}"), "seed": m.seed,
-                     "flights": m.flights, "best_epoch": m.best_epoch})
+                     "flights": m.flights, "best_epoch": m.best_epoch, "epochs_run": m.epochs_run})
     write_json(tmp / BANDS_FILE, {"schema": SCHEMA, "kind": "ensemble", "vehicle": "hybrid_vehicle.yaml",
                                   "members": docs, "scale": scale, "horizon": horizon, "calibrated_on": where,
+                                  "start": START,
                                   "resampling": "by flight: each member draws as many training flights as there "
                                                 "are, with replacement; a flight drawn twice counts twice"})

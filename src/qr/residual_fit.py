@@ -82,6 +82,11 @@ class ResidualConfig:
     # residuals trained on the training flights resampled by flight, each with its own seed, saved beside the
     # hybrid (qr.ensemble): the band qr evaluate draws around it (qr.bands); 0: none, no band
     members: int = setting(5, "integer", ge=0, le=100)
+    # each member starts from the trained network and is fine-tuned on its resample for at most this many
+    # epochs (learn.patience stops it early), keeping its best validation epoch (never the start itself)
+    member_epochs: int = setting(3, "integer", ge=1, le=100_000)
+    # processes training members at once (one torch thread each); 0: min(2, cores).  Same bytes for any value
+    member_jobs: int = setting(0, "integer", ge=0, le=256)
     force_scale: float = setting(0.05, gt=0)  # output scale of the force, in m g
     torque_scale: float = setting(0.05, gt=0)  # ... of the torque, in m g times the mean rotor arm
 
@@ -290,8 +295,9 @@ def initial_net(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int):
 
 
 def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lambda msg: None,
-          on_epoch=None) -> Trained:
-    """Train on the pieces' ``train`` starts, stop on their ``val`` starts (see the module doc)."""
+          on_epoch=None, keep_start: bool = True) -> Trained:
+    """Train on the pieces' ``train`` starts, stop on their ``val`` starts (see the module doc).
+    ``keep_start=False``: the start's weights are never the ones kept (an ensemble member must move)."""
     import copy
 
     import torch
@@ -324,6 +330,8 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
 
         initial = {"train_loss": evaluate(train_b), "val_loss": evaluate(val_b)}
         best, best_state, best_epoch, stale, skipped = initial["val_loss"], copy.deepcopy(net.state_dict()), 0, 0, 0
+        if not keep_start:
+            best = math.inf
         opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         gen = torch.Generator().manual_seed(seed)
         history, stopped = [], f"the epoch limit ({cfg.epochs})"

@@ -121,12 +121,17 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
         from .. import ensemble
 
         t1 = time.perf_counter()
-        members = ensemble.train_members(rcfg, veh, parts, split["training"], seed, rcfg.members, say)
+        members, jobs = ensemble.train_members(rcfg, hybrid, parts, split["training"], seed, rcfg.members, say,
+                                               trained.wall_s / max(len(trained.epochs), 1))
         scale, where = ensemble.calibrated(physical, hybrid, members, parts, ecfg.horizon)
         members = (members, scale, where)
         doc["ensemble"] = {"members": rcfg.members, "file": ensemble.BANDS_FILE, "scale": scale,
                            "scale_horizon": ecfg.horizon,
                            "calibrated_on": where, "wall_s": time.perf_counter() - t1,
+                           "start": ensemble.START, "member_epochs": rcfg.member_epochs,
+                           "patience": rcfg.patience, "jobs": jobs,
+                           "epochs_run": [m.epochs_run for m in members[0]],
+                           "best_epochs": [m.best_epoch for m in members[0]],
                            "resampled": "by flight" if split["by"] != "time" else
                            "not resampled: one flight (members differ by their seeds)"}
     _write(out, force, physical, res, doc, say, members)
