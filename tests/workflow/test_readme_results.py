@@ -89,7 +89,7 @@ def _results(root, flights=2, residual=None, generalization=False):
     (sim / "stability.csv").write_text("model\n")
     (root / "learn" / "residual" / "brushless").mkdir(parents=True)
     (root / "learn" / "residual" / "brushless" / "training.json").write_text(json.dumps(
-        {"config": {"learn": residual or {"epochs": 1, "width": 8, "depth": 1, "stride": 8, "lr": 0.003}}}))
+        {"config": {"learn": residual or {"epochs": 1, "width": 8, "depth": 1, "stride": 8, "members": 2, "lr": 0.003}}}))
     if generalization:  # issue 33's table: set, split, held_out, model, p, v, R, w, coverage90
         pd.DataFrame([
             {"set": "brushless", "split": "trajectory", "held_out": "time scale 0.5", "model": "physical (refined)",
