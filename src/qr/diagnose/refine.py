@@ -62,7 +62,7 @@ from ..effects import CATALOG, DIMENSIONLESS, TIED, plausible_bounds, unit
 from ..errors import QrInputError
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
-from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, Windows, roll_window, score_plant, summary, pool, at
+from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, BandsConfig, Windows, roll_window, score_plant, summary, pool, at
 from ..sim.plant import (P_DELAY, P_J, P_MARKER, P_MASS, cg_from_tracked, plant_accels, tracked_point,
                          true_params)
 
@@ -841,7 +841,7 @@ def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, c
     return bands.calibrate(bands.spread(held_out, np.array(Ps), H))
 
 
-BAND_DRAWS = 32  # = evaluate.bands.draws' default: the band calibrated is the band evaluated
+BAND_DRAWS = BandsConfig().draws  # evaluate.bands.draws' default: the band calibrated is the band evaluated
 
 
 def _balance_check(balance: "Balance", vehicle, specs: list[_Spec], theta0) -> tuple:
