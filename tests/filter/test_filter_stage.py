@@ -170,7 +170,7 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     _, said_other = diagnose("other", ["filter.smoother=false"], estimates=[xfit])
     assert len(said_other) == 2 and not any("read from" in m for m in said_other)
     # the learning data set is labelled from the same estimates: its f_a and tau_a are the diagnosis's
-    from qr.stages.learn import build_dataset
+    from qr.stages.learn_sets import build_dataset
 
     table = build_dataset([xfit], ["gap"], vf, tmp_path / "dataset.parquet")
     prep = res.labels.full

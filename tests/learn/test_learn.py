@@ -11,7 +11,9 @@ import pytest
 from conftest import ROOT
 from learning_data import drag_flight, random_table
 from qr import datasets
-from qr.stages import learn
+from qr.models.training import apply_row
+from qr.stages.learn import job_name, run_learn
+from qr.stages.learn_sets import best, collect, count_jobs
 from qr.config import compose, to_dict
 
 
@@ -41,13 +43,13 @@ def test_hidden_drag_is_learned_to_the_noise_floor(tmp_path):
     floor = _rms((y - total_term(effects, s, vehicle)[:, :3])[test])
     runs = [("linear", "[v_b]"), ("ann", "[v_b]"), ("gpr", "[v_b]"), ("ann", "[v_b,a_b,q,u]")]
     for i, (kind, inputs) in enumerate(runs):
-        learn.run(_cfg(path, f"model={kind}", f"learn.inputs={inputs}", "split=thesis"), tmp_path / "out", f"r{i}")
-    got = learn.collect(tmp_path / "out")
+        run_learn(_cfg(path, f"model={kind}", f"learn.inputs={inputs}", "split=thesis"), tmp_path / "out", f"r{i}")
+    got = collect(tmp_path / "out")
     assert got["nominal_rmse"].to_numpy() == pytest.approx(_rms(y[test]))  # nominal = the labels, same samples
     assert got.set_index("name").loc["r3", "leaks_target"]
-    best = learn.best(got)
-    assert not best["leaks_target"]
-    assert 0.8 * floor <= best["rmse"] <= 1.2 * floor, (best["name"], best["rmse"], floor)
+    chosen = best(got)
+    assert not chosen["leaks_target"]
+    assert 0.8 * floor <= chosen["rmse"] <= 1.2 * floor, (chosen["name"], chosen["rmse"], floor)
     for kind in ("ann", "gpr"):
         ok = got[(got["kind"] == kind) & ~got["leaks_target"]]
         assert len(ok) and (ok["ratio"] < 0.5).all(), ok[["name", "ratio"]]
@@ -58,8 +60,8 @@ def test_hidden_drag_is_learned_to_the_noise_floor(tmp_path):
 def test_best_never_picks_a_leaking_run():
     runs = pd.DataFrame({"name": ["a", "b", "c"], "rmse": [0.1, 0.01, 0.2], "leaks_target": [False, True, False],
                          "row": [1, 2, 3]})
-    assert learn.best(runs)["name"] == "a"
-    assert learn.best(runs[runs["leaks_target"]]) is None
+    assert best(runs)["name"] == "a"
+    assert best(runs[runs["leaks_target"]]) is None
 
 
 def test_same_config_and_seed_give_the_same_numbers(tmp_path):
@@ -68,14 +70,15 @@ def test_same_config_and_seed_give_the_same_numbers(tmp_path):
     path = tmp_path / "table.parquet"
     datasets.write_table(random_table(flights=6, n=200), path)
     cfg = _cfg(path, "model=ann", "model.activation=tanh", "model.neurons=6", "split=by_flight", "seed=5")
-    a = learn.run(cfg, tmp_path / "a", "run")
-    b = learn.run(cfg, tmp_path / "b", "run")
-    strip = lambda m: {k: v for k, v in m.items() if k != "train_time_s"}  # noqa: E731
-    assert strip(a["metrics"]) == strip(b["metrics"])
+    a = run_learn(cfg, tmp_path / "a", "run")
+    b = run_learn(cfg, tmp_path / "b", "run")
+    strip = lambda m: {k: v for k, v in m.to_dict().items() if k != "train_time_s"}  # noqa: E731
+    assert strip(a.scores) == strip(b.scores)
     X = np.random.default_rng(0).normal(size=(20, 7))
-    np.testing.assert_array_equal(models.load(a["model_dir"]).predict(X), models.load(b["model_dir"]).predict(X))
-    c = learn.run({**cfg, "model": {**cfg["model"], "seed": 6}}, tmp_path / "c", "run")
-    assert c["metrics"]["rmse"] != a["metrics"]["rmse"]
+    np.testing.assert_array_equal(models.load(tmp_path / "a" / "models" / "run").predict(X),
+                                  models.load(tmp_path / "b" / "models" / "run").predict(X))
+    c = run_learn({**cfg, "model": {**cfg["model"], "seed": 6}}, tmp_path / "c", "run")
+    assert c.scores.rmse != a.scores.rmse
 
 
 def test_named_sweeps_are_the_thesis_tables():
@@ -84,19 +87,19 @@ def test_named_sweeps_are_the_thesis_tables():
 
     from qr.config import CONF_DIR
 
-    force = learn.apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=18"))
+    force = apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=18"))
     assert force["learn"]["inputs"] == ["v_b", "a_b", "q", "u"] and force["model"]["neurons"] == 5
     assert datasets.leaks_target(force["learn"]["target"], force["learn"]["inputs"]) and force["thesis"] == 0.0775
-    torque = learn.apply_row(_cfg("x.parquet", "sweep=table_4_3", "learn.row=13"))
+    torque = apply_row(_cfg("x.parquet", "sweep=table_4_3", "learn.row=13"))
     assert (torque["learn"]["target"], torque["model"]["layers"], torque["model"]["neurons"]) == ("tau_a", 2, 3)
     with initialize_config_dir(CONF_DIR, version_base="1.3"):
         for name, jobs in (("table_4_2", 20), ("table_4_3", 17), ("gpr_kernels", 8)):
             cfg = hcompose("config", overrides=[f"sweep={name}"], return_hydra_config=True)
-            assert learn.count_jobs(cfg) == jobs
+            assert count_jobs(cfg) == jobs
             if name != "gpr_kernels":
                 assert sorted(cfg.sweep.rows) == list(range(1, jobs + 1))
     with pytest.raises(Exception, match="learn.row=30 is not a row"):
-        learn.apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=30"))
+        apply_row(_cfg("x.parquet", "sweep=table_4_2", "learn.row=30"))
 
 
 def test_multirun_is_a_parent_run_with_children_logged_by_two_processes(tmp_path, monkeypatch):
@@ -152,7 +155,7 @@ def test_the_logged_mlflow_model_predicts_what_qr_predicts(tmp_path, monkeypatch
     datasets.write_table(random_table(flights=5, n=120), path)
     cfg = _cfg(path, f"model={kind}", "learn.inputs=[v_b,u]",
                *(["model.hyper_subset=100"] if kind == "gpr" else ["model.max_iter=30"] if kind == "ann" else []))
-    record = learn.run(cfg, tmp_path / "out", "one")
+    run_learn(cfg, tmp_path / "out", "one")
     client = tracking._client()
     (run,) = client.search_runs([tracking.experiment_id("learn")])
     logged = mlflow.pyfunc.load_model(f"runs:/{run.info.run_id}/model")
@@ -161,7 +164,7 @@ def test_the_logged_mlflow_model_predicts_what_qr_predicts(tmp_path, monkeypatch
     table = pd.read_parquet(path)
     X, _ = datasets.xy(table, ["v_b", "u"], "f_a")
     X = X[:40]
-    ours = models.load(record["model_dir"]).predict(X)
+    ours = models.load(tmp_path / "out" / "models" / "one").predict(X)
     got = logged.predict(X if flavor == "pytorch" else pd.DataFrame(X, columns=datasets.columns(["v_b", "u"])))
     np.testing.assert_allclose(np.asarray(got, dtype=float), ours, rtol=1e-9, atol=1e-12)
 
@@ -175,9 +178,9 @@ def test_learning_tables_have_the_thesis_columns(tmp_path):
             "gpr_kernels": ["sweep=gpr_kernels"]}
     for sweep, (name, *rows) in jobs.items():
         for row in rows or [None]:
-            cfg = learn.apply_row(_cfg(path, name, *([row] if row else []), "model.max_iter=30"
+            cfg = apply_row(_cfg(path, name, *([row] if row else []), "model.max_iter=30"
                                        if sweep != "gpr_kernels" else "model.hyper_subset=100"))
-            learn.run(cfg, tmp_path / sweep, learn.job_name(cfg))
+            run_learn(cfg, tmp_path / sweep, job_name(cfg))
     out = {t: tmp_path / "tables" / f"{t}.csv" for t in ("table_3_1", "table_3_2", "table_4_2", "table_4_3",
                                                             "gpr_kernels")}
     write_learning_tables({s: tmp_path / s for s in jobs}, out)

@@ -118,14 +118,14 @@ def test_learned_model_adapter(fake_learning_stage, tmp_path):
 
 def test_learned_model_in_the_study(fake_learning_stage, tmp_path):
     """Wired like the workflow will: a leaking learned model is refused for tracking, analysed for stability."""
-    from qr.stages.simulate import stability_study, tracking_study
+    from qr.sim.simulation import stability_study, tracking_study
 
     spec = {"model": "learned", "path": str(tmp_path)}
     with pytest.raises(QrInputError, match="leaks the target"):
         tracking_study({"vehicle": "asctec_hummingbird", "duration": 1.0,
                         "sources": {"l": {"plant": {"force": spec}}}}, progress=False)
-    table, analyses, _ = stability_study({"vehicle": "asctec_hummingbird", "stability": {
-        "duration_s": 1.0, "models": {"learned": spec}}}, progress=False)
+    table = stability_study({"vehicle": "asctec_hummingbird", "stability": {
+        "duration_s": 1.0, "models": {"learned": spec}}}, progress=False).table
     assert table.loc[0, "model"] == "learned" and table.loc[0, "lagged_status"] == "ok"
     assert table.loc[0, "n_above_one"] == 0
 

@@ -24,7 +24,8 @@ def test_gain_solves_the_riccati_equation_and_stabilises():
 
 
 def test_controller_uses_the_thesis_gains_and_the_config(hummingbird):
-    from qr.stages.simulate import settings, simulate_config
+    from qr.sim.simulation import simulate_config
+    from qr.sim.specs import settings
 
     sim = simulate_config(["simulate=thesis"])
     C = controller_params(hummingbird, settings(sim).gains)

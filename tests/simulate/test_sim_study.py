@@ -76,12 +76,12 @@ def test_thesis_model8_is_eq_4_38_and_compensates_its_own_disturbance(hummingbir
 
 def test_divergence_ends_the_run_with_a_recorded_row(hummingbird):
     """A disturbance the vehicle cannot carry: the study stops the run and records it, no NaN, no hang."""
-    from qr.stages.simulate import tracking_study
+    from qr.sim.simulation import tracking_study
 
     force = {"model": "linear", "inputs": ["v_b"], "W": np.zeros((3, 3)).tolist(), "b": [0.0, 0.0, -40.0]}
     sim = {"vehicle": "asctec_hummingbird", "rate": 500, "duration": 6.0,
            "sources": {"too_heavy": {"plant": {"force": force}, "estimates": {}}}}
-    table, logs = tracking_study(sim, progress=False)
+    table = tracking_study(sim, progress=False).table
     assert set(table["status"]) == {"diverged"}
     row = table.iloc[0]
     assert row["message"].startswith("diverged at t = ") and "position error" in row["message"]
@@ -90,14 +90,14 @@ def test_divergence_ends_the_run_with_a_recorded_row(hummingbird):
 
 
 def test_same_config_same_numbers(hummingbird):
-    from qr.stages.simulate import tracking_study
+    from qr.sim.simulation import tracking_study
 
     sim = {"vehicle": "asctec_hummingbird", "duration": 3.0, "identification": {"duration_s": 10.0, "seed": 1,
                                                                                "accel_noise_m_s2": 0.1},
            "sources": {"dw": {"plant": {"effects": ["wind_force:fx=0.3,fy=0,fz=0"]},
                               "estimates": {"fit": {"model": "fit_linear", "inputs": ["v_b", "u"]}}}}}
-    a, _ = tracking_study(sim, progress=False)
-    b, _ = tracking_study(sim, progress=False)
+    a = tracking_study(sim, progress=False).table
+    b = tracking_study(sim, progress=False).table
     pd.testing.assert_frame_equal(a, b)
     assert list(a["controller"]) == ["nominal", "compensated:fit", "oracle"]
     assert a.loc[a["controller"] == "oracle", "ratio_to_oracle"].item() == 1.0
@@ -105,7 +105,7 @@ def test_same_config_same_numbers(hummingbird):
 
 def test_a_leaking_model_is_refused_for_tracking(hummingbird):
     from qr.errors import QrInputError
-    from qr.stages.simulate import tracking_study
+    from qr.sim.simulation import tracking_study
 
     leaky = {"model": "linear", "inputs": ["a_b"], "W": np.eye(3).tolist(), "b": [0, 0, 0]}
     sim = {"vehicle": "asctec_hummingbird", "duration": 1.0,

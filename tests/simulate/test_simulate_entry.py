@@ -15,12 +15,13 @@ SMALL = ["simulate=thesis", "simulate.duration=2.0", "simulate.identification.du
 
 def test_writers_make_tables_figures_and_one_run_per_simulation(tmp_path, monkeypatch):
     from qr import tracking
-    from qr.stages.simulate import simulate_config, write_stability, write_tracking
+    from qr.sim.simulation import simulate_config
+    from qr.stages.simulate import write_study
 
     monkeypatch.setenv("QR_TRACKING", "on")
     sim = simulate_config(SMALL)
-    table = write_tracking(sim, tmp_path / "simulation" / "tracking.csv")
-    stab = write_stability(sim, tmp_path / "simulation" / "stability.csv")
+    table = write_study(sim, "tracking", tmp_path / "simulation" / "tracking.csv").table
+    stab = write_study(sim, "stability", tmp_path / "simulation" / "stability.csv").table
     csv = pd.read_csv(tmp_path / "simulation" / "tracking.csv")
     assert list(csv["source"].unique()) == ["thesis_model8", "drag_wind"]
     assert len(csv) == len(table) == 4 + 4
@@ -63,14 +64,14 @@ def test_hydra_entry_point_runs_and_rejects_bad_config_in_one_line(tmp_path):
                                              ("simulate.sources.learned.enabled=true", "no path given")])
 def test_user_mistakes_are_one_clear_error(override, match):
     from qr.errors import QrInputError
-    from qr.stages.simulate import simulate_config, tracking_study
+    from qr.sim.simulation import simulate_config, tracking_study
 
     with pytest.raises(QrInputError, match=match):
         tracking_study(simulate_config([*SMALL, override]), progress=False)
 
 
 def test_crazyflie_config_inherits_the_thesis_study():
-    from qr.stages.simulate import simulate_config
+    from qr.sim.simulation import simulate_config
 
     sim = simulate_config(["simulate=crazyflie"])
     assert sim["vehicle"] == "crazyflie21_brushless" and sim["gains"]["q_pos"] == 100.0

@@ -7,7 +7,7 @@ Added on the command line (the sweep's processes need this folder on PYTHONPATH)
 
 ``at=job_start`` (default): every job waits before it starts; ``at=multirun_end``: the sweep, its jobs
 done, waits before it ends (Hydra calls the end callbacks in reverse order: before
-qr.stages.learn.LearnSweep closes the parent run).  Either way the sweep's MLflow parent run is open
+qr.stages.learn_sets.LearnSweep closes the parent run).  Either way the sweep's MLflow parent run is open
 while it waits, so a test decides when the sweep writes or ends: it forces what it needs (an overlap
 with another writer, an interrupt while the parent run is open) instead of hoping for it.
 """

@@ -19,7 +19,7 @@ import pytest
 
 import workflow_runs as wr
 from conftest import ROOT
-from qr.stages.learn import PARENT_FILE
+from qr.stages.sweep_callback import PARENT_FILE
 from sweep_barrier import barrier_overrides
 
 GRID = ["model=linear", "learn.inputs=[v_b],[v_b,u],[q,u]", "learn.target=f_a,tau_a", "model.alpha=0,1e-6"]  # 12 jobs

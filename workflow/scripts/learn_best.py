@@ -1,7 +1,7 @@
 """Snakemake rule `learn_best`: copy each table's best model that does not leak its target (for simulation)."""
 import sys
 
-from qr.stages.learn import copy_best
+from qr.stages.learn_sets import copy_best
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

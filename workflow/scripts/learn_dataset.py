@@ -1,7 +1,7 @@
 """Snakemake rule `learn_dataset`: the filtered flights of one set -> one learning table."""
 import sys
 
-from qr.stages.learn import build_dataset
+from qr.stages.learn_sets import build_dataset
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

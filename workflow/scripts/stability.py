@@ -1,10 +1,11 @@
 """Snakemake rule `stability`: eigenvalues of M_{v,a} and closed loops -> stability.csv/.md, figures."""
 import sys
 
-from qr.stages.simulate import simulate_config, write_stability
+from qr.sim.simulation import simulate_config
+from qr.stages.simulate import write_study
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log
     out = snakemake.output
-    write_stability(simulate_config(snakemake.params.overrides), out.table,
-                    {"eigenvalues": out.eigenvalues, "divergence": out.divergence}, inputs=list(snakemake.input))
+    write_study(simulate_config(snakemake.params.overrides), "stability", out.table,
+                {"eigenvalues": out.eigenvalues, "divergence": out.divergence}, inputs=list(snakemake.input))

@@ -7,6 +7,8 @@ try:
 except ImportError:  # pragma: no cover
     Callback = object
 
+PARENT_FILE = ".mlflow_parent"  # in a sweep's output folder: the id of its MLflow parent run, for every job
+
 
 class SweepCallback(Callback):
     """Launchers pickle the callbacks along with each job; a worker needs none of the parent's state (an
