@@ -260,3 +260,29 @@ def test_a_state_table_needs_its_vehicle_and_the_right_one(tmp_path):
         datasets.read_table(path, "crazyflie21_brushless")
     table = datasets.read_table(path, "asctec_hummingbird")
     assert set(table["flight"]) == {"states"} and len(table) > 0.9 * len(states)
+
+
+def test_scores_are_the_rms_of_the_test_errors_and_the_band_coverage():
+    """The test part's scores by hand: a model off by known errors; a GP's 95 % band holding 5 of its 6."""
+    from types import SimpleNamespace
+
+    from qr.models.training import _scores
+
+    y = np.array([[3.0, 0.0, 1.0], [-3.0, 4.0, 1.0]])
+    e = np.array([[0.3, 0.0, 0.1], [0.3, -0.4, -0.1]])  # y - prediction
+    linear = SimpleNamespace(kind="linear", predict=lambda X: y - e)
+    s = _scores(linear, None, y, "f_a", train_time_s=1.0, train_rmse=0.2, n_train=10, n_val=3, n_test=2)
+    assert s.rmse == pytest.approx(np.sqrt((0.09 * 2 + 0.16 + 0.01 * 2) / 6))
+    assert [a.axis for a in s.axes] == ["f_x", "f_y", "f_z"] and s.axes[0].rmse == pytest.approx(0.3)
+    assert s.axes[1].nominal_rmse == pytest.approx(np.sqrt(8.0)) and s.ratio == pytest.approx(s.rmse / np.sqrt(36 / 6))
+    assert s.coverage95 is None and list(s.to_dict()) == [
+        "rmse", "nominal_rmse", "ratio", "rmse_f_x", "nominal_rmse_f_x", "ratio_f_x", "rmse_f_y", "nominal_rmse_f_y",
+        "ratio_f_y", "rmse_f_z", "nominal_rmse_f_z", "ratio_f_z", "train_time_s", "train_rmse", "n_train", "n_val",
+        "n_test"]  # the run record's order (runs/<name>.json, runs.csv's columns)
+    # the band +-1.96 sigma = +-0.314 holds |e| <= 0.3, not 0.4 (1 sigma would drop the 0.3s, 2.58 take the 0.4)
+    std = np.full_like(y, 0.16)
+    gpr = SimpleNamespace(kind="gpr", predict=lambda X, return_std=False: (y - e, std))
+    g = _scores(gpr, None, y, "tau_a", train_time_s=1.0, train_rmse=0.2, n_train=10, n_val=3, n_test=2)
+    assert [a.axis for a in g.axes] == ["tau_x", "tau_y", "tau_z"]
+    assert g.coverage95 == pytest.approx(5 / 6) and [a.coverage95 for a in g.axes] == [1.0, 0.5, 1.0]
+    assert list(g.to_dict())[12:16] == ["coverage95", "coverage95_tau_x", "coverage95_tau_y", "coverage95_tau_z"]
