@@ -37,7 +37,8 @@ OVERRIDES = ["+experiment=[crazyflie_short_flights,refine]"]
 
 def main():
     from qr.stages.diagnose import run_diagnosis
-    from qr.stages.evaluate import held_out_models, run_evaluation
+    from qr.stages.evaluate import run_evaluation
+    from qr.stages.evaluate_sets import held_out_models
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--set", default="brushless")
@@ -56,15 +57,14 @@ def main():
     out.mkdir(parents=True, exist_ok=True)  # qr writes into an existing folder only
     print(f"{a.set}: training on {len(a.train)} flights, scoring {len(a.score)}", flush=True)
     t0 = time.perf_counter()
-    doc = run_diagnosis([flight(n) for n in a.train], a.vehicle, out / "diag", OVERRIDES + a.extra, track=False,
-                        figures=False, reports=[nis(n) for n in a.train], estimates=[est(n) for n in a.train],
-                        log=lambda m: None)
+    doc, diagnosis = run_diagnosis([flight(n) for n in a.train], a.vehicle, out / "diag", OVERRIDES + a.extra,
+                                   track=False, figures=False, reports=[nis(n) for n in a.train],
+                                   estimates=[est(n) for n in a.train], log=lambda m: None, return_result=True)
     wall = time.perf_counter() - t0
-    (out / "models").mkdir(exist_ok=True)
-    models, labels = held_out_models(a.vehicle, out / "diag", out / "models")
-    ev = run_evaluation([flight(n) for n in a.score], models, out / "eval", figures=False,
+    files, models, labels = held_out_models(a.vehicle, diagnosis, doc, out / "models")
+    ev = run_evaluation([flight(n) for n in a.score], files, out / "eval", figures=False,
                         reports=[nis(n) for n in a.score], estimates=[est(n) for n in a.score], labels=labels,
-                        log=lambda m: None)
+                        log=lambda m: None, loaded=models)
     m, H = ev["models"], ev["horizon"]
     print(f"\nratio to rate_frozen at h = {H} on the scored flights (p / v / R / w):")
     for key, block in m.items():

@@ -34,7 +34,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("QR_TRACKING", "off")
 
 from qr import rollout  # noqa: E402
-from qr.stages.evaluate import evaluate_held_out, held_out_by_flight  # noqa: E402
+from qr.stages.evaluate import held_out_by_flight  # noqa: E402
+from qr.stages.evaluate_sets import evaluate_held_out  # noqa: E402
 
 # conf/workflow.yaml: the measured diagnoses' overrides, and the held-out rule's learned torque remainder
 WORKFLOW_OVERRIDES = ["diagnose.block_s=1.0", "diagnose.gap_s=0.5", "diagnose.horizon_s=0.5",

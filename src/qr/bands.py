@@ -374,8 +374,8 @@ def scale_words(scale: dict | None) -> str:
 # ---- the bands of one evaluation ------------------------------------------------------------------------
 
 class BandSet:
-    """The bands of ``qr evaluate``'s models: each model's source and plants, and its :class:`Spread` per flight
-    as the flights' pieces are added (:meth:`add`); :meth:`blocks` gives ``evaluation.json``'s ``bands``."""
+    """The bands of ``qr evaluate``'s models as they are drawn: each model's source and plants, and its
+    :class:`Spread` per flight as the flights' pieces are added (:meth:`add`); :meth:`result` freezes them."""
 
     def __init__(self, keys: list[str], files: list, vehicles: list, draws: int, seed: int, say=lambda m: None):
         self.sources, self.plants, self.missing = {}, {}, {}
@@ -390,22 +390,39 @@ class BandSet:
                 continue
             self.sources[key] = src
             self.plants[key] = src.plants(v, draws, seed)
-            say(f"band of {key}: {self.describe(key)}")
+            say(f"band of {key}: {_describe(src, draws)}")
         self.spreads: dict = {k: {} for k in self.sources}
-
-    def describe(self, key: str) -> str:
-        src = self.sources[key]
-        what = (f"{len(src.members)} residual members (flights resampled by flight)" if src.kind == "ensemble" else
-                f"{self.draws} draws of {len(src.params)} refined parameters from their covariance")
-        return f"{what}, {src.file}; scale {scale_words(src.scale)}"
 
     def add(self, flight: str, w: Windows, H: int) -> None:
         for key, Ps in self.plants.items():
             have = self.spreads[key].setdefault(flight, [])
             have.append(spread([w], Ps, H, first_piece=len(have)))
 
+    def result(self) -> Bands:
+        return Bands(self.draws, self.seed, dict(self.sources),
+                     {k: {f: Spread.join(parts) for f, parts in per.items()} for k, per in self.spreads.items()},
+                     dict(self.missing))
+
+
+def _describe(src: Source, draws: int) -> str:
+    what = (f"{len(src.members)} residual members (flights resampled by flight)" if src.kind == "ensemble" else
+            f"{draws} draws of {len(src.params)} refined parameters from their covariance")
+    return f"{what}, {src.file}; scale {scale_words(src.scale)}"
+
+
+@dataclass(frozen=True)
+class Bands:
+    """The bands of one evaluation: per banded model its source and its :class:`Spread` per flight (the
+    flight's pieces joined, numbered in order); ``missing``: per model without a band, why."""
+
+    draws: int
+    seed: int
+    sources: dict[str, Source]
+    spreads: dict[str, dict[str, Spread]]
+    missing: dict[str, str]
+
     def spread_of(self, key: str, flight: str) -> Spread:
-        return Spread.join(self.spreads[key].get(flight, []))
+        return self.spreads[key].get(flight, Spread.join([]))
 
     def blocks(self, H: int) -> tuple[dict, dict]:
         """``({model: block}, {model: why no band})``: per model its kind, source, scale, draws and the
@@ -413,8 +430,8 @@ class BandSet:
         ``by_quantity``) and per flight."""
         out = {}
         for key, src in self.sources.items():
-            per = {f: coverage(Spread.join(parts), src.scale) for f, parts in self.spreads[key].items()}
-            pooled = coverage(Spread.join([p for parts in self.spreads[key].values() for p in parts]), src.scale)
+            per = {f: coverage(sp, src.scale) for f, sp in self.spreads[key].items()}
+            pooled = coverage(Spread.join(list(self.spreads[key].values())), src.scale)
             out[key] = {"kind": src.kind, "source": src.file,
                         "draws": len(src.members) if src.kind == "ensemble" else self.draws,
                         "seed": None if src.kind == "ensemble" else self.seed,

@@ -219,3 +219,47 @@ print("same")
     env = {**os.environ, "NUMBA_NUM_THREADS": "2"}
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.strip() == "same", r.stderr[-2000:]
+
+
+def test_the_held_out_models_are_the_diagnosis_in_memory_at_full_precision(tmp_path):
+    """``Diagnosis.models()``: the extended (one-step) model carries the named effects' parameters at full
+    precision (diagnosis.json states 6 digits) on the nominal vehicle's own rotor properties; the refined model
+    is the written one without its torque remainder; the hybrid is the extended one plus that remainder.  The
+    held-out protocol writes exactly these vehicles (read back equal) and labels them; on a flight the model
+    does not describe (nothing written) the extended model is still the nominal one plus what was identified."""
+    from types import SimpleNamespace
+
+    from qr.diagnose.diagnosis import Diagnosis
+    from qr.diagnose.fit import NamedEffect
+    from qr.stages.evaluate_sets import held_out_models
+    from qr.torque_remainder import N_FEATURES, block
+    from qr.vehicle import load_vehicle
+
+    nominal = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
+    kx = 0.123456789123  # 0.123457 in diagnosis.json
+    drag = NamedEffect("linear_drag", {"kx": kx, "ky": 0.2, "kz": 0.05}, {"kx": 0.01, "ky": 0.01, "kz": 0.01}, 0.5, [])
+    remainder = block(np.full((3, N_FEATURES), 1e-4), "a test remainder")
+    written = nominal.with_changes(effects=nominal.effects + [{"name": "linear_drag",
+                                                               "parameters": {"kx": 0.13, "ky": 0.2, "kz": 0.05}}],
+                                   rotor_inertia=2e-5, torque_remainder=remainder)
+    m = Diagnosis.models(SimpleNamespace(vehicle=nominal, extended_vehicle=written, effects=[drag], refinement=object()))
+    assert m.nominal is nominal
+    assert m.extended.effects == nominal.effects + [{"name": "linear_drag",
+                                                     "parameters": {"kx": kx, "ky": 0.2, "kz": 0.05}}]
+    assert m.extended.rotor_inertia == nominal.rotor_inertia != 2e-5 and "torque_remainder" not in m.extended.raw
+    assert m.refined.effects[-1]["parameters"]["kx"] == 0.13 and m.refined.rotor_inertia == 2e-5
+    assert "torque_remainder" not in m.refined.raw
+    assert m.hybrid.raw["torque_remainder"] == remainder and m.hybrid.effects == m.extended.effects
+    assert m.hybrid.rotor_inertia == nominal.rotor_inertia
+
+    files, vehicles, labels = held_out_models(VEHICLES / "asctec_hummingbird.yaml", SimpleNamespace(models=lambda: m),
+                                              {"refine": {}}, tmp_path / "models")
+    assert labels == ["nominal", "extended", "physical (refined)", "hybrid"]
+    assert vehicles == [m.nominal, m.extended, m.refined, m.hybrid]
+    assert [p.rsplit("/", 1)[-1] for p in files[1:]] == ["extended_physical.yaml", "refined_physical.yaml",
+                                                         "extended_vehicle.yaml"]
+    for f, v in zip(files[1:], vehicles[1:]):
+        assert load_vehicle(f).to_dict() == v.to_dict()
+
+    misfit = Diagnosis.models(SimpleNamespace(vehicle=nominal, extended_vehicle=nominal, effects=[drag], refinement=None))
+    assert misfit.refined is None and misfit.hybrid is None and misfit.extended.effects[-1]["parameters"]["kx"] == kx

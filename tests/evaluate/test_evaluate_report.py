@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from qr.report import evaluation as rep
+from qr.evaluate import report as rep
 
 Q = ("p", "v", "R", "w")
 

@@ -2,7 +2,7 @@
 import sys
 
 from qr.holdout import SplitConfig
-from qr.stages.evaluate import evaluate_held_out
+from qr.stages.evaluate_sets import evaluate_held_out
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

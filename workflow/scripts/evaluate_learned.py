@@ -3,7 +3,7 @@ import sys
 from pathlib import Path
 
 from qr.holdout import SplitConfig
-from qr.stages.evaluate import evaluate_learned
+from qr.stages.evaluate_sets import evaluate_learned
 
 carried = [Path(snakemake.input.carried) / "hybrid_vehicle.yaml"] if snakemake.input.carried else []
 with open(snakemake.log[0], "w") as log:

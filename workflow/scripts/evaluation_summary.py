@@ -1,7 +1,7 @@
 """Snakemake rule `evaluation_summary`: the held-out rollouts of the flight sets in one table."""
 import sys
 
-from qr.stages.evaluate import summary_table
+from qr.stages.evaluate_sets import summary_table
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -2,7 +2,7 @@
 import sys
 
 from qr.holdout import Fold
-from qr.stages.generalize import run_fold
+from qr.stages.evaluate_sets import run_fold
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -28,7 +28,7 @@ from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
 from ..identification.normal_equations import Columns
 from ..rollout import EvaluateConfig
-from ..vehicle import Vehicle
+from ..vehicle import ROTOR_PROPERTIES, Vehicle, vehicle_from_dict
 from .accelerometer import accelerometer_check
 from .coefficients import CHECKED_AGAINST, coefficient_checks, evidence
 from .core import block_stats
@@ -62,6 +62,19 @@ class Settings:
 
 
 @dataclass(frozen=True)
+class Models:
+    """The vehicles a diagnosis makes, in memory (full precision): the nominal one; ``extended``, its
+    equation-error effects on the nominal vehicle's own rotor properties (the one-step model); ``refined``,
+    the model written with ``diagnose.refine=rollout`` (without its torque remainder); ``hybrid``, the
+    extended one plus the learned torque remainder (it was fitted against that model)."""
+
+    nominal: Vehicle
+    extended: Vehicle
+    refined: Vehicle | None
+    hybrid: Vehicle | None
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     """What the nominal model gets wrong on some flights, the causes named, the extended model, the gain."""
 
@@ -81,6 +94,7 @@ class Diagnosis:
     # nominal vehicle on a flight the model does not describe
     torque_remainder: TorqueRemainder | None = None  # the learned torque remainder (a hybrid), where asked
     refinement: object | None = None  # qr.diagnose.refine.Refinement (diagnose.refine=rollout), or None
+    vehicle: Vehicle = field(kw_only=True)  # the nominal vehicle
 
     @property
     def effects(self) -> list[NamedEffect]:
@@ -95,6 +109,18 @@ class Diagnosis:
         """The answer in one paragraph, from the numbers it states."""
         said = " ".join(c["statement"][0].upper() + c["statement"][1:] + "." for c in self.vehicle_file)
         return _verdict(self) + (" " + said if said else "")
+
+    def models(self) -> Models:
+        """:class:`Models`: the nominal, extended, refined and hybrid vehicles."""
+        base, raw = self.vehicle, self.extended_vehicle.to_dict()
+        remainder = raw.pop("torque_remainder", None)
+        # (the refinement may have written other rotor properties: the one-step model keeps the nominal ones)
+        one = {k: v for k, v in raw.items() if k not in ROTOR_PROPERTIES}
+        one.update({k: base.raw[k] for k in ROTOR_PROPERTIES if k in base.raw})
+        one["effects"] = base.effects + [e.in_vehicle() for e in self.effects]
+        return Models(base, vehicle_from_dict(one, quiet=True),
+                      vehicle_from_dict(raw, quiet=True) if self.refinement is not None else None,
+                      vehicle_from_dict({**one, "torque_remainder": remainder}, quiet=True) if remainder else None)
 
 
 def _verdict(d: Diagnosis) -> str:
@@ -198,7 +224,7 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     if held_out.misfit:  # what the flight shows is stated; nothing of it goes into the vehicle, or about its file
         written, statements, unresolved = vehicle, [], []
     return Diagnosis(flights, settings, final.labels, final, {**not_named, **dropped}, held_out, replay, rollout,
-                     beyond, accelerometer, statements, unresolved, written, torque_rem, refinement)
+                     beyond, accelerometer, statements, unresolved, written, torque_rem, refinement, vehicle=vehicle)
 
 
 def _refined(states, rows, vehicle, final: Fit, extended: Vehicle, settings: Settings, say,

@@ -77,7 +77,7 @@ def bands_section(doc: dict, figure: str | None) -> list[str]:
     return L
 
 
-def bands_figure(doc: dict, bandset, path: Path) -> None:
+def bands_figure(doc: dict, bands, path: Path) -> None:
     """Per banded model (rows), position and attitude (columns): over the first scored flight, the error at h = H
     at the time predicted, with the scaled 50 % and 90 % radii shaded from 0."""
     import numpy as np
@@ -90,7 +90,7 @@ def bands_figure(doc: dict, bandset, path: Path) -> None:
     fig, axs = figures.subplots(len(keys), 2, figsize=(11, 2.6 * len(keys) + 0.4), layout="constrained",
                                 squeeze=False)
     for r, key in enumerate(keys):
-        sp = bandset.spread_of(key, flight)
+        sp = bands.spread_of(key, flight)
         scale = doc["bands"][key]["scale"] or {}
         for c, q in enumerate(("p", "R")):
             ax = axs[r][c]

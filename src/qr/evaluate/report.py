@@ -1,5 +1,6 @@
-"""``qr evaluate``'s report: the answer in one sentence, each model's error as a multiple of the physics
-baseline's, how the error grows with the horizon, and the figure.  Every sentence is built from the
+"""``qr evaluate``'s report (:func:`write`: report.md and the figures of an Evaluation): the answer in one
+sentence, each model's error as a multiple of the physics baseline's, how the error grows with the horizon,
+and the figure.  Every sentence is built from the
 numbers it states (``evaluation.json``'s; tests/evaluate/test_evaluate_report.py reads them back)."""
 
 from __future__ import annotations
@@ -146,6 +147,40 @@ def envelope_section(doc: dict) -> list[str]:
     return L + [""]
 
 
+def metric_names(doc: dict) -> dict[str, str]:
+    """Model key -> its label as an MLflow metric name ("physical (refined)" -> physical_refined)."""
+    import re
+
+    return {k: re.sub(r"[^A-Za-z0-9_\-./:]+", "_", v).strip("_") for k, v in labels(doc).items()}
+
+
+def metrics(doc: dict) -> dict[str, float]:
+    """The tracked metrics: MAE at h = H per model and quantity and each model's ratio to ``rate_frozen``,
+    named by the models' labels."""
+    from ..rollout import horizon_metrics
+
+    name_of = metric_names(doc)
+    return horizon_metrics({name_of[k]: v for k, v in doc["models"].items()}, doc["horizon"], ratios=True)
+
+
+def write(folder: Path, evaluation, figures: bool = True) -> None:
+    """``report.md`` of an :class:`qr.evaluate.Evaluation` into ``folder`` and, with ``figures``, its figures
+    (``figures/rollout_mae.png``; ``figures/bands.png`` where a model has a band)."""
+    from ..atomic import write_text
+    from .document import document
+
+    doc, band_fig = document(evaluation), None
+    if figures:
+        (folder / "figures").mkdir()
+        mae_figure(doc, folder / "figures" / "rollout_mae.png")
+        if doc.get("bands"):
+            from ..report.bands import bands_figure
+
+            band_fig = "figures/bands.png"
+            bands_figure(doc, evaluation.bands, folder / band_fig)
+    write_text(folder / "report.md", report(doc, "figures/rollout_mae.png" if figures else None, band_fig))
+
+
 def report(doc: dict, figure: str | None, bands_figure: str | None = None) -> str:
     """``report.md``: ``figure`` is the MAE figure's path relative to the report (None: no figure);
     ``bands_figure``: the bands' (:mod:`qr.report.bands`)."""
@@ -170,7 +205,7 @@ def report(doc: dict, figure: str | None, bands_figure: str | None = None) -> st
         scored = [k for k in doc["models"] if k not in REFERENCES]
         L += ["## Per flight", "", f"Ratio to `{BASELINE}` at h = {H}, {' / '.join(NAMES[q] for q in QUANTITIES)}, "
               f"per model ({', '.join(labels(doc)[k] for k in scored)}):", "", *per_flight_table(doc), ""]
-    from .bands import bands_section
+    from ..report.bands import bands_section
 
     L += bands_section(doc, bands_figure)
     L += envelope_section(doc)
@@ -184,7 +219,7 @@ def mae_figure(doc: dict, path: Path) -> None:
     """MAE against the time ahead (h · dt, s), one panel per quantity, one curve per model."""
     import numpy as np
 
-    from . import figures
+    from ..report import figures
 
     name, dt = labels(doc), doc["dt"]
     fig, axs = figures.subplots(1, 4, figsize=(13, 3.4), layout="constrained")
