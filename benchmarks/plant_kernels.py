@@ -1,6 +1,6 @@
 """The compiled plant's kernels on one synthetic flight: what the named plant state (qr.plant_state) must not slow.
 
-    .venv/bin/python benchmarks/plant_kernels.py [--repeats 5] [--threads 1]
+    .venv/bin/python benchmarks/plant_kernels.py [--repeats 5] [--threads 1] [--only rollout,synth]
 
 Flies a 60 s, 100 Hz synthetic Crazyflie flight with several effects (qr synth's loop at 1 kHz), then times,
 each the best of ``--repeats`` after a warm-up (numba's compile and cache load not counted):
@@ -23,6 +23,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--threads", type=int, default=1, help="numba threads (the rollout's chunks)")
+    ap.add_argument("--only", default="synth,rollout,bands,torch", help="the kernels to time (comma-separated)")
     a = ap.parse_args()
     import numba
     import numpy as np
@@ -43,6 +44,8 @@ def main():
     cfg = SynthConfig(duration=60, rate=100, seed=3)
 
     def timed(name, fn):
+        if name not in a.only.split(","):
+            return
         fn()  # compile or load the cache
         ts = []
         for _ in range(a.repeats):

@@ -66,7 +66,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rotor_directions": list(pp.yaw_signs),
         "rI": [0.0, 0.0, 0.0],
         "rotor_radius": display_radius(pp),
-        "c_Dx": P[ps.P_QUAD], "c_Dy": P[ps.P_QUAD.start + 1], "c_Dz": P[ps.P_QUAD.start + 2],
+        "c_Dx": P[ps.P_QUAD.start], "c_Dy": P[ps.P_QUAD.start + 1], "c_Dz": P[ps.P_QUAD.start + 2],
         "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
         "k_d": P[ps.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[ps.P_TLIFT],
         "k_flap": -P[ps.P_FLAP] / (4 * pp.hover),
