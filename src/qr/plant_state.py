@@ -112,6 +112,8 @@ NET_RELU = NET.slot("activation", 1, "0 tanh, 1 relu")
 NET_DEPTH = NET.slot("depth", 1, "the number of layers L")
 N_NET_HEAD = NET.size  # d_0 … d_L follow
 
+PlantState, PlantParams = STATE.view(), PARAMS.view()  # the frozen views (types for annotations)
+
 
 def unpack(vector: np.ndarray, layout: Layout = PARAMS):
     """The frozen view of ``vector``'s slots (a parameter vector's network tail is not in it)."""

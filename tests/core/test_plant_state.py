@@ -42,6 +42,10 @@ def test_the_state_is_position_velocity_quaternion_rate_rotors():
                                                            ("rate", 3), ("rotor_speeds", 4)]
     assert (ps.N_RB, ps.N_X, ps.STATE_PARTS) == (13, 17, (3, 3, 4, 3))
     assert ps.X_QUAT == slice(6, 10) and ps.X_ROTORS == slice(13, 17)
+    x = np.arange(17.0) / 7
+    view = ps.unpack(x, ps.STATE)
+    assert isinstance(view, ps.PlantState) and view.quaternion.tolist() == x[6:10].tolist()
+    assert ps.pack(view).tobytes() == x.tobytes()
 
 
 EFFECTS = {"linear_drag": "kx=0.3,ky=0.2,kz=0.1", "wind_force": "fx=0.5,fy=-0.3,fz=0.2",
