@@ -34,7 +34,7 @@ import numba as nb
 import numpy as np
 
 from .rollout import MODEL, QUANTITIES, Windows, roll_window
-from .sim.plant import P_DELAY, P_MARKER
+from .plant_state import N_RB, P_DELAY, P_MARKER, X_POS, X_QUAT, X_RATE, X_VEL
 from .frames_compiled import quat_angle
 
 SCHEMA = "qr.bands/1"
@@ -58,8 +58,8 @@ def _quantile(vals, n, level):
 @nb.njit(cache=True)
 def _dist(a, b, q):
     if q == 2:
-        return quat_angle(a[6:10], b[6:10])
-    o = 0 if q == 0 else (3 if q == 1 else 10)
+        return quat_angle(a[X_QUAT], b[X_QUAT])
+    o = X_POS.start if q == 0 else (X_VEL.start if q == 1 else X_RATE.start)
     return math.sqrt((a[o] - b[o]) ** 2 + (a[o + 1] - b[o + 1]) ** 2 + (a[o + 2] - b[o + 2]) ** 2)
 
 
@@ -67,42 +67,48 @@ def _dist(a, b, q):
 def _spread(t, X0, Us, starts, H, Ps, tp, tq, tv, tw, err, r50, r90):
     """Per start (its own row: no shared sums): the centre's (plant 0) error at h = H against the truth
     (NaN where the truth is missing or the piece ends) and the draws' (plants 1 …) radii around it."""
-    D = Ps.shape[0] - 1
     for s in nb.prange(len(starts)):
-        i = starts[s]
-        x, xn, xs, k = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
-        out = np.empty((H, 13))
-        centre = np.empty(13)
-        steps, _ = roll_window(t, X0, Us[0], i, H, Ps[0], MODEL, Ps[0, P_MARKER:P_MARKER + 3].copy(), out, k, xs,
-                               xn, x)
+        _spread_at(s, t, X0, Us, starts, H, Ps, tp, tq, tv, tw, err, r50, r90)
+
+
+@nb.njit(cache=True)
+def _spread_at(s, t, X0, Us, starts, H, Ps, tp, tq, tv, tw, err, r50, r90):
+    """:func:`_spread`'s start ``s`` (a kernel of its own: numba's parallel analysis takes no slice constant)."""
+    D = Ps.shape[0] - 1
+    i = starts[s]
+    x, xn, xs, k = np.empty(N_RB), np.empty(N_RB), np.empty(N_RB), np.empty((4, N_RB))
+    out = np.empty((H, N_RB))
+    centre = np.empty(N_RB)
+    steps, _ = roll_window(t, X0, Us[0], i, H, Ps[0], MODEL, Ps[0, P_MARKER].copy(), out, k, xs, xn, x)
+    for q in range(4):
+        err[s, q] = np.nan
+        r50[s, q] = np.nan
+        r90[s, q] = np.nan
+    if steps < H:
+        return
+    centre[:] = out[H - 1]
+    j = i + H
+    p, v, w = X_POS.start, X_VEL.start, X_RATE.start
+    if np.isfinite(tp[j, 0]):
+        err[s, 0] = math.sqrt((centre[p] - tp[j, 0]) ** 2 + (centre[p + 1] - tp[j, 1]) ** 2
+                              + (centre[p + 2] - tp[j, 2]) ** 2)
+    if np.isfinite(tv[j, 0]):
+        err[s, 1] = math.sqrt((centre[v] - tv[j, 0]) ** 2 + (centre[v + 1] - tv[j, 1]) ** 2
+                              + (centre[v + 2] - tv[j, 2]) ** 2)
+    if np.isfinite(tq[j, 0]):
+        err[s, 2] = quat_angle(tq[j], centre[X_QUAT])
+    if np.isfinite(tw[j, 0]):
+        err[s, 3] = math.sqrt((centre[w] - tw[j, 0]) ** 2 + (centre[w + 1] - tw[j, 1]) ** 2
+                              + (centre[w + 2] - tw[j, 2]) ** 2)
+    dev = np.empty((4, D))
+    for d in range(D):
+        P = Ps[d + 1]
+        roll_window(t, X0, Us[d + 1], i, H, P, MODEL, P[P_MARKER].copy(), out, k, xs, xn, x)
         for q in range(4):
-            err[s, q] = np.nan
-            r50[s, q] = np.nan
-            r90[s, q] = np.nan
-        if steps < H:
-            continue
-        centre[:] = out[H - 1]
-        j = i + H
-        if np.isfinite(tp[j, 0]):
-            err[s, 0] = math.sqrt((centre[0] - tp[j, 0]) ** 2 + (centre[1] - tp[j, 1]) ** 2
-                                  + (centre[2] - tp[j, 2]) ** 2)
-        if np.isfinite(tv[j, 0]):
-            err[s, 1] = math.sqrt((centre[3] - tv[j, 0]) ** 2 + (centre[4] - tv[j, 1]) ** 2
-                                  + (centre[5] - tv[j, 2]) ** 2)
-        if np.isfinite(tq[j, 0]):
-            err[s, 2] = quat_angle(tq[j], centre[6:10])
-        if np.isfinite(tw[j, 0]):
-            err[s, 3] = math.sqrt((centre[10] - tw[j, 0]) ** 2 + (centre[11] - tw[j, 1]) ** 2
-                                  + (centre[12] - tw[j, 2]) ** 2)
-        dev = np.empty((4, D))
-        for d in range(D):
-            P = Ps[d + 1]
-            roll_window(t, X0, Us[d + 1], i, H, P, MODEL, P[P_MARKER:P_MARKER + 3].copy(), out, k, xs, xn, x)
-            for q in range(4):
-                dev[q, d] = _dist(out[H - 1], centre, q)
-        for q in range(4):
-            r50[s, q] = _quantile(dev[q], D, 0.5)
-            r90[s, q] = _quantile(dev[q], D, 0.9)
+            dev[q, d] = _dist(out[H - 1], centre, q)
+    for q in range(4):
+        r50[s, q] = _quantile(dev[q], D, 0.5)
+        r90[s, q] = _quantile(dev[q], D, 0.9)
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .plant_state import X_QUAT, X_RATE, X_VEL
+
 QUANTITIES = ("speed", "tilt", "rotor", "rate")
 WORDS = {"speed": "speed", "tilt": "tilt", "rotor": "rotor speeds", "rate": "body rates"}
 
@@ -35,7 +37,7 @@ def _tilt(q: np.ndarray) -> np.ndarray:
 
 def _signals(w) -> dict[str, np.ndarray]:
     """Per sample of a :class:`qr.rollout.Windows`: speed, tilt (n,), rotor speeds (n, 4), body rate (n, 3)."""
-    v, q, om = w.X0[:, 3:6], w.X0[:, 6:10], w.X0[:, 10:13]
+    v, q, om = w.X0[:, X_VEL], w.X0[:, X_QUAT], w.X0[:, X_RATE]
     return {"speed": np.linalg.norm(v, axis=1), "tilt": _tilt(q), "rotor": w.U, "rate": om}
 
 

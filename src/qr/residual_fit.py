@@ -28,6 +28,7 @@ import numpy as np
 
 from .allowed import check_fields, check_known, setting, show
 from .errors import QrInputError
+from .plant_state import X_QUAT, X_RATE, X_VEL
 from .residual import ACTIVATIONS, GROUPS
 from .rollout import MODEL, QUANTITIES, RATE_FROZEN, Windows, score_plant, summary
 
@@ -277,10 +278,10 @@ def initial_net(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int):
 
     X = np.concatenate([pc.windows.X0[pc.train] for pc in pieces if len(pc.train)])
     U = np.concatenate([pc.windows.U[pc.train] for pc in pieces if len(pc.train)])
-    R = quat_to_rot(X[:, 6:10] / np.linalg.norm(X[:, 6:10], axis=1, keepdims=True))
-    v_b = np.einsum("nji,nj->ni", R, X[:, 3:6])
+    R = quat_to_rot(X[:, X_QUAT] / np.linalg.norm(X[:, X_QUAT], axis=1, keepdims=True))
+    v_b = np.einsum("nji,nj->ni", R, X[:, X_VEL])
     speed = float(vehicle.hover_speed)
-    phi = features(cfg.inputs, v_b, X[:, 10:13], -R[:, 2, :], U, speed)
+    phi = features(cfg.inputs, v_b, X[:, X_RATE], -R[:, 2, :], U, speed)
     mean, scale = phi.mean(axis=0), phi.std(axis=0)
     scale = np.where(scale > 1e-9 * np.maximum(1.0, np.abs(mean)), scale, 1.0)
     arm = float(np.mean(np.linalg.norm(vehicle.rotors.positions, axis=1)))

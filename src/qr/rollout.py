@@ -28,8 +28,8 @@ from .allowed import check_fields, check_known, setting
 from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
 from .holdout import SplitConfig
-from .sim.plant import (N_P, P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv,
-                        true_params)
+from .plant_state import N_P, N_RB, P_DELAY, P_MARKER, X_POS, X_QUAT, X_RATE, X_VEL
+from .sim.plant import cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 
 if TYPE_CHECKING:  # (annotations only: the config group's settings, read by every Hydra command, need no pandas)
@@ -69,7 +69,7 @@ def _finite(x):
 @nb.njit(cache=True)
 def roll_window(t, X0, U, i, H, P, mode, r, out, k, xs, xn, x):
     """The window starting at ``i``: the predicted tracked point's p, v (world), q and ω after each step
-    h = 1 … H into ``out[h − 1]`` (13 values); returns the number of steps made (fewer where the piece
+    h = 1 … H into ``out[h − 1]`` (``N_RB`` values, the slots of a state); returns the number of steps made (fewer where the piece
     ends) and whether the rollout diverged.  The one rollout loop of ``qr evaluate``, the refinement and their references.
 
     ``mode``: MODEL, HOLD (the start state held) or RATE_FROZEN (ω held).  ``U[j − 1]`` acts over step
@@ -84,6 +84,7 @@ def roll_window(t, X0, U, i, H, P, mode, r, out, k, xs, xn, x):
     moving = mode != HOLD
     steps = 0
     diverged = False
+    p, v = X_POS.start, X_VEL.start
     for h in range(1, H + 1):
         j = i + h
         if j >= n:
@@ -93,15 +94,15 @@ def roll_window(t, X0, U, i, H, P, mode, r, out, k, xs, xn, x):
             if h > 1 and mode == MODEL:
                 rotor_speed_change(x, U[j - 2], u, P)
             rigid_body_rk4(x, u, u, u, P, t[j] - t[j - 1], mode == RATE_FROZEN, zero, k, xs, xn)
-            if _finite(xn) and abs(xn[3]) + abs(xn[4]) + abs(xn[5]) < 1e3:
+            if _finite(xn) and abs(xn[v]) + abs(xn[v + 1]) + abs(xn[v + 2]) < 1e3:
                 x[:] = xn
             else:  # diverged: the last sane state stands for the rest (its errors still count)
                 moving = False
                 diverged = True
         px, py, pz, vx, vy, vz = tracked_pv(x, r)
         row = out[h - 1]
-        row[0], row[1], row[2], row[3], row[4], row[5] = px, py, pz, vx, vy, vz
-        for m in range(6, 13):
+        row[p], row[p + 1], row[p + 2], row[v], row[v + 1], row[v + 2] = px, py, pz, vx, vy, vz
+        for m in range(X_QUAT.start, N_RB):  # q, ω
             row[m] = x[m]
         steps = h
     return steps, diverged
@@ -112,9 +113,10 @@ def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
     """Chunk ``c``: every CHUNKS-th run of STRIDE starts (the scored starts are often one end of a
     flight, its held-out part: interleaving keeps the threads equally busy)."""
     n = X0.shape[0]
-    r = P[P_MARKER:P_MARKER + 3].copy()
-    x, xn, xs, k = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
-    out = np.empty((H, 13))
+    r = P[P_MARKER].copy()
+    x, xn, xs, k = np.empty(N_RB), np.empty(N_RB), np.empty(N_RB), np.empty((4, N_RB))
+    out = np.empty((H, N_RB))
+    p, v, q, w = X_POS.start, X_VEL.start, X_QUAT.start, X_RATE.start
     for i in range(n - 1):
         if (i // STRIDE) % CHUNKS != c or not start_ok[i]:
             continue
@@ -123,17 +125,19 @@ def _starts(c, t, X0, U, start_ok, tp, tq, tv, tw, H, P, mode, sums, counts):
             j = i + h
             y = out[h - 1]
             if np.isfinite(tp[j, 0]):
-                sums[h - 1, 0] += math.sqrt((y[0] - tp[j, 0]) ** 2 + (y[1] - tp[j, 1]) ** 2 + (y[2] - tp[j, 2]) ** 2)
+                sums[h - 1, 0] += math.sqrt((y[p] - tp[j, 0]) ** 2 + (y[p + 1] - tp[j, 1]) ** 2
+                                            + (y[p + 2] - tp[j, 2]) ** 2)
                 counts[h - 1, 0] += 1
             if np.isfinite(tv[j, 0]):
-                sums[h - 1, 1] += math.sqrt((y[3] - tv[j, 0]) ** 2 + (y[4] - tv[j, 1]) ** 2 + (y[5] - tv[j, 2]) ** 2)
+                sums[h - 1, 1] += math.sqrt((y[v] - tv[j, 0]) ** 2 + (y[v + 1] - tv[j, 1]) ** 2
+                                            + (y[v + 2] - tv[j, 2]) ** 2)
                 counts[h - 1, 1] += 1
             if np.isfinite(tq[j, 0]):
-                sums[h - 1, 2] += quat_angle(tq[j], y[6:10])
+                sums[h - 1, 2] += quat_angle(tq[j], y[X_QUAT])
                 counts[h - 1, 2] += 1
             if np.isfinite(tw[j, 0]):
-                sums[h - 1, 3] += math.sqrt((y[10] - tw[j, 0]) ** 2 + (y[11] - tw[j, 1]) ** 2
-                                            + (y[12] - tw[j, 2]) ** 2)
+                sums[h - 1, 3] += math.sqrt((y[w] - tw[j, 0]) ** 2 + (y[w + 1] - tw[j, 1]) ** 2
+                                            + (y[w + 2] - tw[j, 2]) ** 2)
                 counts[h - 1, 3] += 1
 
 
@@ -172,7 +176,7 @@ class Windows:
     """One gap-free piece as the rollout reads it: start states, inputs and truth on the same stamps."""
 
     t: np.ndarray  # (n,) s
-    X0: np.ndarray  # (n, 13) start states of the tracked point: p, v (world), q, ω (body)
+    X0: np.ndarray  # (n, N_RB) start states of the tracked point: p, v (world), q, ω (body)
     U: np.ndarray  # (n, 4) measured rotor speeds, a dropout held at the last present value
     ok: np.ndarray  # (n,) bool: the starts scored (inputs without a long gap, a finite start state, ``keep``)
     tp: np.ndarray  # (n, 3) truth: measured position (NaN where missing)

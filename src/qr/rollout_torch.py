@@ -20,18 +20,20 @@ import torch
 
 from .frames import G
 from .residual import GROUPS, ORDER
-from .sim.plant import (MIN_GROUND_HEIGHT, N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_DELAY, P_FLAP, P_FLAP_PITCH, P_GE,
-                        P_GZ, P_HUB, P_J, P_LIN, P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_ROTOR_J,
-                        P_SCALE, P_TBIAS, P_TLIFT, P_UHOVER, P_WIND, P_YAW_GAIN)
+from .plant_state import (N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_FLAP, P_FLAP_PITCH, P_GE, P_GZ, P_HUB, P_J, P_LIN,
+                          P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_ROTOR_J, P_SCALE, P_TBIAS,
+                          P_TLIFT, P_UHOVER, P_WIND, P_YAW_GAIN, STATE_PARTS, X_POS, X_QUAT, X_RATE, X_VEL)
+from .sim.plant import MIN_GROUND_HEIGHT
 
 DTYPE = torch.float64
 
 
-def place(P0, values: dict) -> torch.Tensor:
-    """``P0`` (the plant's vector) as a tensor with ``values`` (slot index → tensor) put at their slots,
-    differentiably: e.g. ``{P_J: J (3,), P_SCALE: c_t / c_t0 * ones(4), P_CQGAIN: c_q / c_q0}``."""
+def place(P0, *values) -> torch.Tensor:
+    """``P0`` (the plant's vector) as a tensor with ``values`` (pairs of a slot of :mod:`qr.plant_state` and a
+    tensor) put at their slots, differentiably: e.g. ``(P_J, J), (P_SCALE, c_t / c_t0 * ones(4)), (P_CQGAIN, k)``."""
     P = torch.as_tensor(np.asarray(P0, float)[:N_P], dtype=DTYPE).clone()
-    for i, v in values.items():
+    for slot, v in values:
+        i = slot.start if isinstance(slot, slice) else slot
         v = torch.as_tensor(v, dtype=DTYPE).reshape(-1)
         P = torch.cat([P[:i], v, P[i + len(v):]])
     return P
@@ -122,7 +124,6 @@ def _quat_rate_map() -> torch.Tensor:
 _RM, _RE = _rotation_map()
 _QC = _quat_rate_map()
 _QC_HALF = 0.5 * _QC  # exact: a power of two
-_PARTS = (3, 3, 4, 3)  # p, v, q, ω in a state
 _G = torch.tensor([0.0, 0.0, G], dtype=DTYPE)
 _XY = torch.tensor([1.0, 1.0, 0.0], dtype=DTYPE)
 _EZ = torch.tensor([[[0.0, 0.0, 1.0]]], dtype=DTYPE)
@@ -225,32 +226,33 @@ class Plant:
     parameters are all zero is skipped, as in the compiled plant (unless ``P`` requires grad)."""
 
     def __init__(self, P: torch.Tensor, residual=None, frozen: bool = False):
-        sc = P[P_SCALE:P_SCALE + 4]
-        B = P[P_B:P_B + 16].reshape(4, 4)
-        self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN] * P[P_YAW_GAIN:P_YAW_GAIN + 4]]).T  # u² → T, Γx, Γy, Γz
+        sc = P[P_SCALE]
+        B = P[P_B].reshape(4, 4)
+        self.Bs = torch.cat([B[:3] * sc, B[3:] * P[P_CQGAIN] * P[P_YAW_GAIN]]).T  # u² → T, Γx, Γy, Γz
         # the rotors' angular momentum along body z per rotor speed (qr.sim.plant.rotor_momentum)
         self.spin_J = -torch.sign(B[3].detach()) * P[P_ROTOR_J]
         self.gyro = _on(P, P[P_ROTOR_J])
-        self.lin, self.quad, self.bias = P[P_LIN:P_LIN + 3], P[P_QUAD:P_QUAD + 3], P[P_BBIAS:P_BBIAS + 3]
+        self.lin, self.quad, self.bias = P[P_LIN], P[P_QUAD], P[P_BBIAS]
         self.lin_on, self.quad_on, self.bias_on = _on(P, self.lin), _on(P, self.quad), _on(P, self.bias)
         self.rdrag = P[P_RDRAG] * _XY
         self.rdrag_on = _on(P, P[P_RDRAG])
         self.ground = _on(P, P[P_GE])
-        self.ge, self.gz, self.marker = P[P_GE], P[P_GZ], P[P_MARKER:P_MARKER + 3]
+        self.ge, self.gz, self.marker = P[P_GE], P[P_GZ], P[P_MARKER]
         zero = torch.zeros((), dtype=DTYPE)
-        self.cg = torch.stack([-P[P_CG + 1], P[P_CG], zero])  # τ = r_cg × (0, 0, T)
-        self.cg_on = _on(P, P[P_CG:P_CG + 2])
+        cx, cy = P[P_CG].unbind()
+        self.cg = torch.stack([-cy, cx, zero])  # τ = r_cg × (0, 0, T)
+        self.cg_on = _on(P, P[P_CG])
         k = P[P_FLAP]
         self.flap = torch.stack([torch.stack([zero, -k * P[P_FLAP_PITCH], zero]), torch.stack([k, zero, zero]),
                                  torch.zeros(3, dtype=DTYPE)])  # v_b @ flap = (k v_y, −k r v_x, 0)
         self.flap_on = _on(P, k)
-        self.tbias, self.wind, self.mass, self.J = P[P_TBIAS:P_TBIAS + 3], P[P_WIND:P_WIND + 3], P[P_MASS], P[P_J:P_J + 3]
+        self.tbias, self.wind, self.mass, self.J = P[P_TBIAS], P[P_WIND], P[P_MASS], P[P_J]
         self.tbias_on, self.wind_on = _on(P, self.tbias), _on(P, self.wind)
         # the hubs (from the CG) where the rotor drag's H-force and translational lift act, where the plant has them
         self.hubs = _on(P, P[P_RDM], P[P_TLIFT])
         self.rdm, self.tlift = P[P_RDM], P[P_TLIFT]
-        self.r = P[P_HUB:P_HUB + 12].reshape(4, 3) - torch.nn.functional.pad(P[P_CG:P_CG + 2], (0, 1))
-        self.rem = P[P_REM:P_REM + 33].reshape(3, 11).T if float(P[P_REM_ON].detach()) != 0.0 else None
+        self.r = P[P_HUB].reshape(4, 3) - torch.nn.functional.pad(P[P_CG], (0, 1))
+        self.rem = P[P_REM].reshape(3, 11).T if float(P[P_REM_ON].detach()) != 0.0 else None
         self.uh = P[P_UHOVER]
         self.residual, self.frozen = residual, frozen
         self.net = _FoldedNet(residual) if isinstance(residual, ResidualNet) else None
@@ -263,7 +265,7 @@ class Plant:
         rotor speeds ``d`` (a :class:`Drive`, or the speeds (B, 4) themselves)."""
         if not isinstance(d, Drive):
             d = Drive(self, d)
-        return self._accels(*x.split(_PARTS, 1), d)
+        return self._accels(*x.split(STATE_PARTS, 1), d)
 
     def _accels(self, p, v, q, w, d):
         R = rotation(q)
@@ -320,7 +322,7 @@ class Plant:
     def deriv(self, x: torch.Tensor, d) -> torch.Tensor:
         if not isinstance(d, Drive):
             d = Drive(self, d)
-        p, v, q, w = x.split(_PARTS, 1)  # one op (slices would cost one gradient buffer each)
+        p, v, q, w = x.split(STATE_PARTS, 1)  # one op (slices would cost one gradient buffer each)
         a, alpha = self._accels(p, v, q, w, d)
         dq = (q[:, :, None] * w[:, None, :]).flatten(1) @ _QC_HALF
         if self.frozen:
@@ -337,7 +339,7 @@ class Plant:
         k3 = self.deriv(torch.addcmul(x, hh, k2), d)
         k4 = self.deriv(torch.addcmul(x, h, k3), d)
         s = torch.add(torch.add(torch.add(k1, k2, alpha=2.0), k3, alpha=2.0), k4)
-        pv, q, w = torch.addcmul(x, h / 6.0, s).split((6, 4, 3), 1)
+        pv, q, w = torch.addcmul(x, h / 6.0, s).split((X_QUAT.start, *STATE_PARTS[2:]), 1)  # p and v, q, ω
         return torch.cat([pv, q / torch.linalg.vector_norm(q, dim=-1, keepdim=True), w], -1)
 
 
@@ -359,8 +361,8 @@ def rk4(x: torch.Tensor, u: torch.Tensor, dt: torch.Tensor, P: torch.Tensor, res
 
 def _marker_terms(x: torch.Tensor, r: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``R r`` and ``R (ω × r)`` (world, (..., 3)), the tracked point's offsets from the CG."""
-    R = rotation(x[..., 6:10])
-    wr = torch.linalg.cross(x[..., 10:13], r.expand_as(x[..., 10:13]))
+    R = rotation(x[..., X_QUAT])
+    wr = torch.linalg.cross(x[..., X_RATE], r.expand_as(x[..., X_RATE]))
     return (R @ r[:, None]).squeeze(-1), (R @ wr[..., None]).squeeze(-1)
 
 
@@ -370,14 +372,14 @@ def rollout(X0: torch.Tensor, U: torch.Tensor, dt: torch.Tensor, P: torch.Tensor
     point, q, ω) driven by the rotor speeds ``U`` (B, H, 4; ``U[:, h-1]`` acts over step h) over the steps
     ``dt`` (B, H): ``qr.rollout``'s windows (the caller applies the actuator delay to ``U``)."""
     plant = Plant(P, residual, frozen)
-    r = P[P_MARKER:P_MARKER + 3]
+    r = P[P_MARKER]
     pr, vr = _marker_terms(X0, r)
-    x = torch.cat([X0[:, :3] - pr, X0[:, 3:6] - vr, X0[:, 6:]], -1)
+    x = torch.cat([X0[:, X_POS] - pr, X0[:, X_VEL] - vr, X0[:, X_QUAT.start:]], -1)
     drive = plant.drive(U)  # every step's rotor-speed terms at once
     jump = None
     if plant.gyro and not frozen and U.shape[1] > 1:  # the held speeds jump: the body takes the rotors' momentum
         dw = (U[:, 1:] - U[:, :-1]) @ plant.spin_J / plant.J[2]  # (B, H − 1)
-        jump = torch.nn.functional.pad(dw[..., None], (12, 0))
+        jump = torch.nn.functional.pad(dw[..., None], (X_RATE.start + 2, 0))  # on ω_z
     out = []
     for h in range(U.shape[1]):
         if h > 0 and jump is not None:
@@ -386,7 +388,7 @@ def rollout(X0: torch.Tensor, U: torch.Tensor, dt: torch.Tensor, P: torch.Tensor
         out.append(x)
     X = torch.stack(out, 1)
     pr, vr = _marker_terms(X, r)
-    return torch.cat([X[..., :3] + pr, X[..., 3:6] + vr, X[..., 6:]], -1)
+    return torch.cat([X[..., X_POS] + pr, X[..., X_VEL] + vr, X[..., X_QUAT.start:]], -1)
 
 
 def _norm(d: torch.Tensor) -> torch.Tensor:
@@ -402,9 +404,9 @@ def window_errors(pred: torch.Tensor, tp, tq, tv, tw) -> torch.Tensor:
     truth = [tp, tq, tv, tw]
     present = torch.stack([torch.isfinite(x).all(-1) for x in (tp, tv, tq, tw)], -1)
     tp, tq, tv, tw = (torch.nan_to_num(x) for x in truth)
-    d = (pred[..., 6:10] * tq).sum(-1).abs()
-    E = torch.stack([_norm(pred[..., 0:3] - tp), _norm(pred[..., 3:6] - tv),
-                     2.0 * torch.acos(torch.clamp(d, max=1.0)), _norm(pred[..., 10:13] - tw)], -1)
+    d = (pred[..., X_QUAT] * tq).sum(-1).abs()
+    E = torch.stack([_norm(pred[..., X_POS] - tp), _norm(pred[..., X_VEL] - tv),
+                     2.0 * torch.acos(torch.clamp(d, max=1.0)), _norm(pred[..., X_RATE] - tw)], -1)
     return torch.where(present, E, torch.full_like(E, float("nan")))
 
 

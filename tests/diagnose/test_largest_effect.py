@@ -26,7 +26,8 @@ from qr.diagnose.held_out import BESIDE_LARGEST, MISFIT
 from qr.flight import ROTORS, write_flight
 from qr.frames import G
 from qr.sim.control import Gains, control, controller_params, for_lag
-from qr.sim.plant import P_DELAY, P_TAU, history_buffer, hover_state, rk4_step, true_params
+from qr.plant_state import P_DELAY, P_TAU
+from qr.sim.plant import history_buffer, hover_state, rk4_step, true_params
 from qr.sim.synth import NoiseConfig, add_noise
 from qr.sim.trajectory import TrajectoryConfig, random_trajectory, reference
 from qr.stages.diagnose import run_diagnosis

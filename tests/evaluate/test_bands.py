@@ -90,9 +90,9 @@ def test_the_monte_carlo_band_covers_what_the_known_parameter_noise_predicts(kno
     sp = bands.spread(pieces, Ps, H)
     # the draws the band flew, from the same generator: the prediction needs no rollout
     d = bands.draw_parameters(np.array([1.0]), np.array([[SIGMA ** 2]]), np.array([[0.5, 1.5]]), draws, 3)[:, 0] - 1
-    from qr.sim.plant import P_SCALE
+    from qr.plant_state import P_SCALE
 
-    assert np.array_equal(Ps[1:, P_SCALE], 1.0 + d) and Ps[0, P_SCALE] == 1.0  # the plants flew these draws
+    assert np.array_equal(Ps[1:, P_SCALE.start], 1.0 + d) and Ps[0, P_SCALE.start] == 1.0  # the plants flew these draws
     for level, r in ((0.5, sp.r50), (0.9, sp.r90)):
         q = _quantile(d, level)
         inside = np.abs(deltas) <= q

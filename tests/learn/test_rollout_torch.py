@@ -17,7 +17,8 @@ from qr import residual as rs
 from qr import rollout
 from qr import rollout_torch as rt
 from qr.effects import CATALOG, parse_effect_spec
-from qr.sim.plant import N_P, P_J, P_SCALE, rigid_body_deriv, rigid_body_rk4, true_params
+from qr.plant_state import N_P, P_DELAY, P_J, P_SCALE
+from qr.sim.plant import rigid_body_deriv, rigid_body_rk4, true_params
 
 EFFECTS = {  # every catalog effect, at sizes a rollout notices (the Hummingbird's scale)
     "linear_drag": "kx=0.3,ky=0.2,kz=0.1", "quadratic_drag": "cx=0.1,cy=0.15,cz=0.05", "rotor_drag": "k=1e-5",
@@ -129,7 +130,7 @@ def test_whole_windows_equal_the_compiled_rollout(case, hummingbird):
     P = true_params(vehicle, effects)
     H = 15
     w = _piece(np.random.default_rng(2), vehicle, H=H)
-    Ud = rt.delayed_inputs(w.t, w.U, torch.as_tensor(P[rollout.P_DELAY]))
+    Ud = rt.delayed_inputs(w.t, w.U, torch.as_tensor(P[P_DELAY]))
     np.testing.assert_allclose(Ud.numpy(), w.inputs(P), rtol=1e-12)
     starts = [s for s in (0, 7, 33, 60, 100) if w.ok[s] and s + H < len(w.t)]
     assert len(starts) >= 4
@@ -155,10 +156,10 @@ def test_gradients_reach_the_physical_parameters(hummingbird):
     w = _piece(np.random.default_rng(3), vehicle, H=H)
     s = 20
     j = s + np.arange(1, H + 1)
-    J = torch.tensor(P0[P_J:P_J + 3], requires_grad=True)
+    J = torch.tensor(P0[P_J], requires_grad=True)
     c = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)  # C_T / C_T(file)
-    P = rt.place(P0, {P_J: J, P_SCALE: c * torch.as_tensor(P0[P_SCALE:P_SCALE + 4])})
-    Ud = rt.delayed_inputs(w.t, w.U, P[rollout.P_DELAY])
+    P = rt.place(P0, (P_J, J), (P_SCALE, c * torch.as_tensor(P0[P_SCALE])))
+    Ud = rt.delayed_inputs(w.t, w.U, P[P_DELAY])
     t = lambda a: torch.as_tensor(np.array(a))[None]  # noqa: E731
     E = rt.window_errors(rt.rollout(t(w.X0[s]), Ud[j - 1][None], t(w.t[j] - w.t[j - 1]), P),
                          t(w.tp[j]), t(w.tq[j]), t(w.tv[j]), t(w.tw[j]))
@@ -170,14 +171,14 @@ def test_gradients_reach_the_physical_parameters(hummingbird):
         return rollout.score_plant(rollout.Windows(w.t, w.X0, w.U, keep, w.tp, w.tq, w.tv, w.tw), H, Pn)[0][:, 3].sum()
 
     for k in range(3):
-        eps = 1e-6 * P0[P_J + k]
+        eps = 1e-6 * P0[P_J.start + k]
         hi, lo = P0.copy(), P0.copy()
-        hi[P_J + k] += eps
-        lo[P_J + k] -= eps
+        hi[P_J.start + k] += eps
+        lo[P_J.start + k] -= eps
         assert J.grad[k].item() == pytest.approx((compiled(hi) - compiled(lo)) / (2 * eps), rel=1e-5)
     hi, lo = P0.copy(), P0.copy()
-    hi[P_SCALE:P_SCALE + 4] *= 1 + 1e-6
-    lo[P_SCALE:P_SCALE + 4] *= 1 - 1e-6
+    hi[P_SCALE] *= 1 + 1e-6
+    lo[P_SCALE] *= 1 - 1e-6
     assert c.grad.item() == pytest.approx((compiled(hi) - compiled(lo)) / 2e-6, rel=1e-5)
 
 

@@ -63,8 +63,8 @@ from ..errors import QrInputError
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
 from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, BandsConfig, Windows, roll_window, score_plant, summary, pool, at
-from ..sim.plant import (P_DELAY, P_J, P_MARKER, P_MASS, cg_from_tracked, plant_accels, tracked_point,
-                         true_params)
+from ..plant_state import N_RB, P_DELAY, P_J, P_MARKER, P_MASS, X_POS, X_QUAT, X_RATE, X_VEL
+from ..sim.plant import cg_from_tracked, plant_accels, tracked_point, true_params
 
 # the vehicle's own coefficients as catalog effects (their neutral value: the vehicle file's)
 COEFFICIENTS = ("inertia_error", "thrust_gain", "yaw_torque_gain", "actuator_delay", "motor_imbalance", "cg_offset")
@@ -303,8 +303,9 @@ def _window(t, X0, U, i, H, P, tp, tq, tv, tw, out, k, xs, xn, x, states):
     """The error vectors (H, 12) of the window starting at ``i`` (zero rows where the truth is missing), by
     the evaluate protocol's own rollout (:func:`qr.rollout.roll_window`: a diverged rollout's last sane state
     stands for the rest of the window, as ``qr evaluate`` scores it); True if it diverged."""
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    r = P[P_MARKER].copy()
     _, diverged = roll_window(t, X0, U, i, H, P, MODEL, r, states, k, xs, xn, x)
+    p, v, q, w = X_POS.start, X_VEL.start, X_QUAT.start, X_RATE.start
     for h in range(1, H + 1):
         j = i + h
         y = states[h - 1]
@@ -312,15 +313,15 @@ def _window(t, X0, U, i, H, P, tp, tq, tv, tw, out, k, xs, xn, x, states):
         for m in range(12):
             row[m] = 0.0
         if math.isfinite(tp[j, 0]):
-            row[0], row[1], row[2] = y[0] - tp[j, 0], y[1] - tp[j, 1], y[2] - tp[j, 2]
+            row[0], row[1], row[2] = y[p] - tp[j, 0], y[p + 1] - tp[j, 1], y[p + 2] - tp[j, 2]
         if math.isfinite(tv[j, 0]):
-            row[3], row[4], row[5] = y[3] - tv[j, 0], y[4] - tv[j, 1], y[5] - tv[j, 2]
+            row[3], row[4], row[5] = y[v] - tv[j, 0], y[v + 1] - tv[j, 1], y[v + 2] - tv[j, 2]
         if math.isfinite(tq[j, 0]):
-            w, a, b, c = qmul_s(tq[j, 0], -tq[j, 1], -tq[j, 2], -tq[j, 3], y[6], y[7], y[8], y[9])
-            s = 2.0 if w >= 0 else -2.0
+            e0, a, b, c = qmul_s(tq[j, 0], -tq[j, 1], -tq[j, 2], -tq[j, 3], y[q], y[q + 1], y[q + 2], y[q + 3])
+            s = 2.0 if e0 >= 0 else -2.0
             row[6], row[7], row[8] = s * a, s * b, s * c
         if math.isfinite(tw[j, 0]):
-            row[9], row[10], row[11] = y[10] - tw[j, 0], y[11] - tw[j, 1], y[12] - tw[j, 2]
+            row[9], row[10], row[11] = y[w] - tw[j, 0], y[w + 1] - tw[j, 1], y[w + 2] - tw[j, 2]
     return diverged
 
 
@@ -345,8 +346,8 @@ def _normal(t, X0, Us, starts, lo, hi, tp, tq, tv, tw, H, Ps, uix, nix, dtheta, 
     D = np.zeros((K, H, 12))
     Jw = np.empty((H * 12, p))
     Jd = np.zeros((H * 12, p))
-    k4, xs, xn, x = np.empty((4, 13)), np.empty(13), np.empty(13), np.empty(13)
-    states = np.empty((H, 13))
+    k4, xs, xn, x = np.empty((4, N_RB)), np.empty(N_RB), np.empty(N_RB), np.empty(N_RB)
+    states = np.empty((H, N_RB))
     for w_i in range(lo, hi):
         i = starts[w_i]
         # every window counts in every pass (the cost's and each variant's): a diverged rollout is scored
@@ -397,13 +398,13 @@ def _balance_sums(X, Ut, Uf, al, acc, P, out):
     """``out`` (6,) += Σ over rows of the squared force (world, N) and torque (body, N m) balance residuals of
     the plant ``P``: ``m (a − â)`` of the tracked point (the marker terms from the measured α, ω) and
     ``J (α − α̂)``, ``Uf`` / ``Ut`` the force- and torque-matched rotor speeds; rows with a NaN are skipped."""
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    r = P[P_MARKER].copy()
     zero = np.zeros(3)
-    x = np.empty(13)
+    x = np.empty(N_RB)
     n = 0
     for i in range(X.shape[0]):
         ok = True
-        for m in range(13):
+        for m in range(N_RB):
             if not math.isfinite(X[i, m]):
                 ok = False
         for m in range(3):
@@ -418,7 +419,7 @@ def _balance_sums(X, Ut, Uf, al, acc, P, out):
         _, _, at = tracked_point(x, a, al[i], r)
         for m in range(3):
             df = P[P_MASS] * (acc[i, m] - at[m])
-            dt = P[P_J + m] * (al[i, m] - alpha[m])
+            dt = P[P_J.start + m] * (al[i, m] - alpha[m])
             out[m] += df * df
             out[3 + m] += dt * dt
         n += 1

@@ -19,7 +19,8 @@ from .. import rollout
 from ..flight import on_stamps
 from ..frames import quat_to_rot
 from ..parallel import thread_map
-from ..sim.plant import P_DELAY, P_MARKER, cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
+from ..plant_state import N_RB, P_DELAY, P_MARKER, X_QUAT, X_VEL
+from ..sim.plant import cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
 from .labels import flight_of
 
@@ -50,12 +51,13 @@ def _replay(t, X0, U, starts, horizon, P, substeps):
     pos = np.full((n, 3), np.nan)
     quat = np.full((n, 4), np.nan)
     elapsed = np.full(n, np.nan)
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    r = P[P_MARKER].copy()
     zero = np.zeros(3)
     d = P[P_DELAY]
     m = U.shape[1]
     u0, um, u1 = np.empty(m), np.empty(m), np.empty(m)
-    x, xn, xs, kk = np.empty(13), np.empty(13), np.empty(13), np.empty((4, 13))
+    x, xn, xs, kk = np.empty(N_RB), np.empty(N_RB), np.empty(N_RB), np.empty((4, N_RB))
+    v = X_VEL.start
     for s in range(starts.shape[0]):
         i0 = starts[s]
         x[:] = X0[i0]
@@ -64,7 +66,7 @@ def _replay(t, X0, U, starts, horizon, P, substeps):
         i = i0
         while True:
             pos[i, 0], pos[i, 1], pos[i, 2], _, _, _ = tracked_pv(x, r)
-            quat[i] = x[6:10]
+            quat[i] = x[X_QUAT]
             elapsed[i] = t[i] - t[i0]
             if i + 1 >= n or t[i + 1] - t[i0] > horizon + 1e-9:
                 break
@@ -77,7 +79,7 @@ def _replay(t, X0, U, starts, horizon, P, substeps):
                 rigid_body_rk4(x, u0, um, u1, P, h, False, zero, kk, xs, xn)
                 x, xn = xn, x
             i += 1
-            if not (np.all(np.isfinite(x)) and abs(x[3]) + abs(x[4]) + abs(x[5]) < 1e3):
+            if not (np.all(np.isfinite(x)) and abs(x[v]) + abs(x[v + 1]) + abs(x[v + 2]) < 1e3):
                 break  # the model diverged in this window: stop predicting
     return pos, quat, elapsed
 

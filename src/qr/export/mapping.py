@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import plant_state as ps
 from ..sim import plant as pl
 from ..vehicle import SPEED_IN_RPM
 
@@ -85,12 +86,12 @@ def plant_of(vehicle) -> Plant:
     P = pl.true_params(vehicle, vehicle.effects)
     f = rad_s_per_unit(vehicle)
     rm = vehicle.rotors
-    scale = P[pl.P_SCALE:pl.P_SCALE + 4]
+    scale = P[ps.P_SCALE]
     k_thrust = rm.thrust_coeff * scale / f**2
-    m = float(P[pl.P_MASS])
-    return Plant(name=vehicle.name, mass=m, inertia=P[pl.P_J:pl.P_J + 3].copy(), rotor_xy=rm.positions.copy(),
-                 yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[pl.P_CQGAIN] / f**2,
-                 cg=P[pl.P_CG:pl.P_CG + 2].copy(), tau_m=float(P[pl.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
+    m = float(P[ps.P_MASS])
+    return Plant(name=vehicle.name, mass=m, inertia=P[ps.P_J].copy(), rotor_xy=rm.positions.copy(),
+                 yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[ps.P_CQGAIN] / f**2,
+                 cg=P[ps.P_CG].copy(), tau_m=float(P[ps.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
                  P=P, unit=f, hub_z=vehicle.hub_z)
 
@@ -229,36 +230,36 @@ def sizes(pp: Plant) -> dict[str, str]:
     def torque(n):
         return torque_size(n, pp)
 
-    lin = P[pl.P_LIN:pl.P_LIN + 3]
-    quad = P[pl.P_QUAD:pl.P_QUAD + 3]
+    lin = P[ps.P_LIN]
+    quad = P[ps.P_QUAD]
     omega_sum_units = 4 * pp.hover / pp.unit
-    rem = P[pl.P_REM:pl.P_REM + 33].reshape(3, 11)
+    rem = P[ps.P_REM].reshape(3, 11)
     return {
         "linear_drag": f"{force(float(np.max(lin)) * V_REF)} at {V_REF:g} m/s",
         "quadratic_drag": f"{force(float(np.max(quad)) * V_REF**2)} at {V_REF:g} m/s",
-        "rotor_drag": f"{force(P[pl.P_RDRAG] * omega_sum_units * V_REF)} at {V_REF:g} m/s and hover rotor speed",
-        "wind_force": force(float(np.linalg.norm(P[pl.P_WIND:pl.P_WIND + 3]))),
-        "body_force_bias": force(float(np.linalg.norm(P[pl.P_BBIAS:pl.P_BBIAS + 3]))),
-        "ground_effect": f"{force(P[pl.P_GE] * W / 0.1**2)} at 0.1 m above the floor in hover",
-        "cg_offset": torque(float(np.linalg.norm(P[pl.P_CG:pl.P_CG + 2])) * W),
-        "torque_bias": torque(float(np.linalg.norm(P[pl.P_TBIAS:pl.P_TBIAS + 3]))),
-        "blade_flapping": f"{torque(abs(P[pl.P_FLAP]) * V_REF)} at {V_REF:g} m/s",
-        "rotor_drag_moment": f"{torque(P[pl.P_RDM] * pp.hover / pp.unit * float(np.sum(pp.rotor_pos[:, :2] ** 2)))} "
+        "rotor_drag": f"{force(P[ps.P_RDRAG] * omega_sum_units * V_REF)} at {V_REF:g} m/s and hover rotor speed",
+        "wind_force": force(float(np.linalg.norm(P[ps.P_WIND]))),
+        "body_force_bias": force(float(np.linalg.norm(P[ps.P_BBIAS]))),
+        "ground_effect": f"{force(P[ps.P_GE] * W / 0.1**2)} at 0.1 m above the floor in hover",
+        "cg_offset": torque(float(np.linalg.norm(P[ps.P_CG])) * W),
+        "torque_bias": torque(float(np.linalg.norm(P[ps.P_TBIAS]))),
+        "blade_flapping": f"{torque(abs(P[ps.P_FLAP]) * V_REF)} at {V_REF:g} m/s",
+        "rotor_drag_moment": f"{torque(P[ps.P_RDM] * pp.hover / pp.unit * float(np.sum(pp.rotor_pos[:, :2] ** 2)))} "
                              "at 1 rad/s of yaw rate and hover rotor speed",
-        "translational_lift": f"{force(4 * P[pl.P_TLIFT] * V_REF**2)} at {V_REF:g} m/s",
-        "actuator_delay": f"{1000 * P[pl.P_DELAY]:.3g} ms between the rotor speed and its wrench",
-        "marker_offset": f"{1000 * float(np.linalg.norm(P[pl.P_MARKER:pl.P_MARKER + 3])):.3g} mm "
+        "translational_lift": f"{force(4 * P[ps.P_TLIFT] * V_REF**2)} at {V_REF:g} m/s",
+        "actuator_delay": f"{1000 * P[ps.P_DELAY]:.3g} ms between the rotor speed and its wrench",
+        "marker_offset": f"{1000 * float(np.linalg.norm(P[ps.P_MARKER])):.3g} mm "
                          "between the tracked point and the CG",
-        "torque_remainder": torque(float(np.max(np.abs(rem[:, 10]))) if P[pl.P_REM_ON] else 0.0)
+        "torque_remainder": torque(float(np.max(np.abs(rem[:, 10]))) if P[ps.P_REM_ON] else 0.0)
         + " (its constant part; the rest grows with v_b, ω and the rotor loads)",
     }
 
 
 def untied_moment(P) -> str:
     """A simulator whose rotor drag acts at the hubs, when rotor_drag_moment's k is not rotor_drag's: what its moment is."""
-    if not P[pl.P_RDRAG]:
+    if not P[ps.P_RDRAG]:
         return "the moment is absent (rotor_drag not named)"
-    return f"its moment has rotor_drag's k ({g(P[pl.P_RDRAG])}), not rotor_drag_moment's ({g(P[pl.P_RDM])})"
+    return f"its moment has rotor_drag's k ({g(P[ps.P_RDRAG])}), not rotor_drag_moment's ({g(P[ps.P_RDM])})"
 
 
 def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list[str], version: str,
@@ -299,7 +300,7 @@ def _rotor_property_rows(vehicle, pp: Plant) -> list[Row]:
         rows.append(Row("rotor_torque_gains", ", ".join(g(x) for x in gains), "-", "-", EXACT,
                         "every rotor's C_Q is torque_coeff: nothing to carry"))
     if vehicle.flapping_pitch_ratio != 1.0:
-        k = float(pp.P[pl.P_FLAP])
+        k = float(pp.P[ps.P_FLAP])
         rows.append(Row("flapping_pitch_ratio", g(vehicle.flapping_pitch_ratio), "-", "-", IMPOSSIBLE if k else EXACT,
                         f"the pitch flapping coefficient over the roll one: left out (pitch moment "
                         f"{g(abs(k * (vehicle.flapping_pitch_ratio - 1)) * V_REF)} N m at {g(V_REF)} m/s beyond "

@@ -25,7 +25,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..frames import G
-from ..sim import plant as pl
+from .. import plant_state as ps
 from . import learned, mapping as mp
 from .mapping import EXACT, IMPOSSIBLE, Row, g
 
@@ -65,7 +65,7 @@ def mjcf(vehicle, pp: mp.Plant, path: str, version: str) -> str:
 
 def has_learned(vehicle, pp: mp.Plant) -> bool:
     """Whether the vehicle carries a learned term (a network, a torque remainder) the MJCF cannot hold."""
-    return vehicle.residual is not None or bool(pp.P[pl.P_REM_ON])
+    return vehicle.residual is not None or bool(pp.P[ps.P_REM_ON])
 
 
 def wrench_module(vehicle) -> str:
@@ -172,18 +172,18 @@ def installed(model):
 
 def wrench_terms(vehicle, pp: mp.Plant) -> dict:
     P = pp.P
-    rem = P[pl.P_REM:pl.P_REM + 33].reshape(3, 11) if P[pl.P_REM_ON] else None
+    rem = P[ps.P_REM].reshape(3, 11) if P[ps.P_REM_ON] else None
     from .rotorpy import file_stem
 
     return {"torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
-            "remainder_hover_speed": learned.Exact([P[pl.P_UHOVER] * pp.unit]),  # rad/s
+            "remainder_hover_speed": learned.Exact([P[ps.P_UHOVER] * pp.unit]),  # rad/s
             "residual": learned.residual_spec(vehicle, pp, file_stem(vehicle))}
 
 
 def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
     from .rotorpy import file_stem
 
-    what = " and ".join(w for w, on in (("the learned torque remainder", pp.P[pl.P_REM_ON]),
+    what = " and ".join(w for w, on in (("the learned torque remainder", pp.P[ps.P_REM_ON]),
                                         ("the learned wrench (the network of qr learn residual)",
                                          vehicle.residual is not None)) if on)
     terms = "\n".join(f"    '{k}': {learned.literal(v, lambda x: repr(float(x)))}," for k, v in
@@ -253,7 +253,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             out.append(Row(name, val, "-", "-", IMPOSSIBLE,
                            f"no MJCF element ({size[name]}): left out; apply it through MjData.xfrc_applied"))
     module = wrench_module(vehicle)
-    if P[pl.P_REM_ON]:
+    if P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", f"{module}.py: LearnedWrench (xfrc_applied)",
                        "the file's W", EXACT,
                        f"a learned map, no MJCF element: the module's control callback adds W φ to the body's torque "

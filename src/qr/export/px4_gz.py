@@ -26,7 +26,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-from ..sim import plant as pl
+from .. import plant_state as ps
 from . import mapping as mp
 from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
 
@@ -113,7 +113,7 @@ def plugin_values(pp: mp.Plant) -> list[dict]:
                     "timeConstantUp": g(pp.tau_m), "timeConstantDown": g(pp.tau_m),
                     "maxRotVelocity": g(pp.speed_max), "motorConstant": g(k), "momentConstant": g(pp.k_yaw / k),
                     "commandSubTopic": "command/motor_speed", "motorNumber": str(i),
-                    "rotorDragCoefficient": g(P[pl.P_RDRAG] / pp.unit), "rollingMomentCoefficient": "0",
+                    "rotorDragCoefficient": g(P[ps.P_RDRAG] / pp.unit), "rollingMomentCoefficient": "0",
                     "rotorVelocitySlowdownSim": str(SLOWDOWN), "motorType": "velocity"})
     return out
 
@@ -199,7 +199,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         Row("(none)", "-", "rollingMomentCoefficient", "0", EXACT,
             "gz's rolling moment is a torque about v⊥; qr has no such term (flapping acts about v × e_z)", formula="0"),
         mp.ground_row(vehicle),
-        mp.hub_row(vehicle, "rotor_<i> pose (z)", kept=("rotor_drag_moment",) if pp.P[pl.P_RDRAG] else ()),
+        mp.hub_row(vehicle, "rotor_<i> pose (z)", kept=("rotor_drag_moment",) if pp.P[ps.P_RDRAG] else ()),
     ]
     size = mp.sizes(pp)
     P = pp.P
@@ -228,14 +228,14 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
                            "velocity (v + ω × r_i): its force is qr's at equal rotor speeds and zero body rate"
                            + ("; its moment about the CG is rotor_drag_moment's (named, the same k)"
-                              if P[pl.P_RDM] == P[pl.P_RDRAG] else
+                              if P[ps.P_RDM] == P[ps.P_RDRAG] else
                               "; its moment about the CG (a yaw-rate damping) is gz's addition (rotor_drag_moment, not named)"),
                            formula="rotor_drag.k / f"))
         elif name == "rotor_drag_moment":
-            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            same = P[ps.P_RDM] == P[ps.P_RDRAG]
             flat = pp.hub_z == 0
             out.append(Row(name, val, "rotorDragCoefficient; rotor_<i> pose", plug[0]["rotorDragCoefficient"]
-                           + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
                            ("gz's rotor drag acts at each rotor link with the link's velocity: its moment about the CG is "
                             "qr's term with rotor_drag's k" + ("" if flat else
                                                                f"; the links sit in the CG's plane, not hub_z = {g(pp.hub_z)} m "
@@ -253,7 +253,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         elif name in size:
             out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"no element of the motor model or the link "
                            f"({size[name]}): left out"))
-    if P[pl.P_REM_ON]:
+    if P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", "-", "-", IMPOSSIBLE,
                        f"a learned map ({size['torque_remainder']}): no element of the Gazebo model holds it: left "
                        "out, the model flies without it"))

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import plant_state as ps
 from ..sim import plant as pl
 from . import learned, mapping as mp
 from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
@@ -65,10 +66,10 @@ def quad_params(pp: mp.Plant) -> dict:
         "rotor_directions": list(pp.yaw_signs),
         "rI": [0.0, 0.0, 0.0],
         "rotor_radius": display_radius(pp),
-        "c_Dx": P[pl.P_QUAD], "c_Dy": P[pl.P_QUAD + 1], "c_Dz": P[pl.P_QUAD + 2],
+        "c_Dx": P[ps.P_QUAD.start], "c_Dy": P[ps.P_QUAD.start + 1], "c_Dz": P[ps.P_QUAD.start + 2],
         "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
-        "k_d": P[pl.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[pl.P_TLIFT],
-        "k_flap": -P[pl.P_FLAP] / (4 * pp.hover),
+        "k_d": P[ps.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[ps.P_TLIFT],
+        "k_flap": -P[ps.P_FLAP] / (4 * pp.hover),
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
         "motor_noise_std": 0.0, **DEFAULT_GAINS,
     }
@@ -90,22 +91,22 @@ def qr_terms(vehicle, pp: mp.Plant) -> dict:
     """What ``QrMultirotor`` adds: SI units, rotor speeds in rad/s, body frame unless named world."""
     P = pp.P
     k_eta = float(np.mean(pp.k_thrust))
-    rem = P[pl.P_REM:pl.P_REM + 33].reshape(3, 11) if P[pl.P_REM_ON] else None
+    rem = P[ps.P_REM].reshape(3, 11) if P[ps.P_REM_ON] else None
     return {
         "thrust_scale": list(pp.k_thrust / k_eta),  # each rotor's thrust / (k_eta ω²)
-        "linear_drag": list(P[pl.P_LIN:pl.P_LIN + 3]),  # N s/m
-        "quadratic_drag": list(P[pl.P_QUAD:pl.P_QUAD + 3]),  # N s²/m²
-        "rotor_drag": P[pl.P_RDRAG] / pp.unit,  # N s/m per rad/s
-        "blade_flapping": P[pl.P_FLAP],  # N m s/m
-        "rotor_drag_moment": P[pl.P_RDM] / pp.unit,  # N s/m per rad/s, at the hubs
-        "translational_lift": P[pl.P_TLIFT],  # N s²/m² per rotor, at the hubs
-        "wind_force": list(P[pl.P_WIND:pl.P_WIND + 3]),  # N, world
-        "body_force_bias": list(P[pl.P_BBIAS:pl.P_BBIAS + 3]),  # N
-        "torque_bias": list(P[pl.P_TBIAS:pl.P_TBIAS + 3]),  # N m
-        "ground_effect": P[pl.P_GE],  # m²
-        "ground_z": P[pl.P_GZ],  # m
-        "marker_offset": list(P[pl.P_MARKER:pl.P_MARKER + 3]),  # m, tracked point from the CG, body
-        "remainder_hover_speed": P[pl.P_UHOVER] * pp.unit,  # rad/s
+        "linear_drag": list(P[ps.P_LIN]),  # N s/m
+        "quadratic_drag": list(P[ps.P_QUAD]),  # N s²/m²
+        "rotor_drag": P[ps.P_RDRAG] / pp.unit,  # N s/m per rad/s
+        "blade_flapping": P[ps.P_FLAP],  # N m s/m
+        "rotor_drag_moment": P[ps.P_RDM] / pp.unit,  # N s/m per rad/s, at the hubs
+        "translational_lift": P[ps.P_TLIFT],  # N s²/m² per rotor, at the hubs
+        "wind_force": list(P[ps.P_WIND]),  # N, world
+        "body_force_bias": list(P[ps.P_BBIAS]),  # N
+        "torque_bias": list(P[ps.P_TBIAS]),  # N m
+        "ground_effect": P[ps.P_GE],  # m²
+        "ground_z": P[ps.P_GZ],  # m
+        "marker_offset": list(P[ps.P_MARKER]),  # m, tracked point from the CG, body
+        "remainder_hover_speed": P[ps.P_UHOVER] * pp.unit,  # rad/s
         "torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
         "residual": learned.residual_spec(vehicle, pp, file_stem(vehicle)),  # the learned body wrench (qr.residual)
     }
@@ -265,7 +266,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         Row("rotor_speed_min, rotor_speed_max", f"{g(vehicle.rotor_speed_min)}, {g(vehicle.rotor_speed_max)} {u}",
             "rotor_speed_min, rotor_speed_max", f"{g(qp['rotor_speed_min'])}, {g(qp['rotor_speed_max'])} rad/s", EXACT,
             "× f", formula="f · u_min, f · u_max"),
-        mp.ground_row(vehicle, "QR_TERMS['ground_z']", g(pp.P[pl.P_GZ]) + " m"),
+        mp.ground_row(vehicle, "QR_TERMS['ground_z']", g(pp.P[ps.P_GZ]) + " m"),
         Row("(none: no vertical rotor drag in qr" + ("" if lift else ", no translational_lift named") + ")",
             "-", "k_z" + ("" if lift else ", k_h"), "0" + ("" if lift else ", 0"), EXACT,
             "RotorPy's defaults for other vehicles are not carried over", formula="0" + ("" if lift else ", 0")),
@@ -304,7 +305,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
                            "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})"))
         elif name == "rotor_drag":
-            both = P[pl.P_RDM] == P[pl.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
+            both = P[ps.P_RDM] == P[ps.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
             out.append(Row(name, val(name), "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",
                            g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
                            "k_d = k / f; RotorPy applies -k_d ω_i [w_x, w_y] at each hub with its airspeed w = v + ω × r_i: "
@@ -315,9 +316,9 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                               "RotorPy's addition (qr's rotor_drag_moment, not named)")
                            + ". QrMultirotor (exact_aero) applies qr's terms exactly", formula="rotor_drag.k / f"))
         elif name == "rotor_drag_moment":
-            same = P[pl.P_RDM] == P[pl.P_RDRAG]
+            same = P[ps.P_RDM] == P[ps.P_RDRAG]
             out.append(Row(name, val(name), "k_d (rotor_drag_matrix), rotor_pos", g(qp["k_d"]) + " N s/m per rad/s",
-                           EXACT if same else IMPOSSIBLE if not P[pl.P_RDRAG] else APPROXIMATE,
+                           EXACT if same else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
                            "k_d = k / f, the same as rotor_drag's: RotorPy's rotor drag at the hubs has the moment "
                            "Σ r_i × (-k_d ω_i [w_ix, w_iy, 0]) about the CG, qr's term exactly" if same else
                            f"RotorPy's rotor drag is a force at the hubs, its moment comes with it: k_d carries rotor_drag's "
@@ -341,24 +342,24 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
                            "applies qr's term exactly", formula=", ".join(mp.fx_effect(vehicle, name, ("cx", "cy", "cz")))))
         elif name == "linear_drag":
-            out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[pl.P_LIN:pl.P_LIN + 3]) + " N s/m",
+            out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[ps.P_LIN]) + " N s/m",
                            EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
                            f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})",
                            formula=", ".join(mp.fx_effect(vehicle, name, ("kx", "ky", "kz")))))
         elif name in ("wind_force", "body_force_bias", "torque_bias"):
             unit = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
-            off = {"wind_force": pl.P_WIND, "body_force_bias": pl.P_BBIAS, "torque_bias": pl.P_TBIAS}[name]
+            off = {"wind_force": ps.P_WIND, "body_force_bias": ps.P_BBIAS, "torque_bias": ps.P_TBIAS}[name]
             params = {"wind_force": ("fx", "fy", "fz"), "body_force_bias": ("bx", "by", "bz"),
                       "torque_bias": ("tx", "ty", "tz")}[name]
-            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off:off + 3]) + " " + unit, EXACT,
+            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off]) + " " + unit, EXACT,
                            f"no RotorPy key: QrMultirotor adds it ({size[name]})",
                            formula=", ".join(mp.fx_effect(vehicle, name, params))))
         elif name == "ground_effect":
-            out.append(Row(name, val(name), "QR_TERMS['ground_effect']", f"{g(P[pl.P_GE])} m²", EXACT,
+            out.append(Row(name, val(name), "QR_TERMS['ground_effect']", f"{g(P[ps.P_GE])} m²", EXACT,
                            f"no RotorPy key: QrMultirotor adds k T / h² along body z, h above ground_z ({size[name]})",
                            formula="ground_effect.k"))
         elif name == "marker_offset":
-            out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[pl.P_MARKER:pl.P_MARKER + 3]) + " m",
+            out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[ps.P_MARKER]) + " m",
                            EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
                            f"point x + R r ({size[name]}), and the ground effect's height uses it",
                            formula=", ".join(mp.fx_effect(vehicle, name, ("rx", "ry", "rz")))))
@@ -366,7 +367,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             out.append(Row(name, val(name), "-", "-", IMPOSSIBLE,
                            f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
                            "first-order motors, delaying cmd_motor_speeds by the same time is equivalent"))
-    if P[pl.P_REM_ON]:
+    if P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", "QR_TERMS['torque_remainder']", "the file's W", EXACT,
                        f"a learned map, no RotorPy key: QrMultirotor adds W φ ({size['torque_remainder']})"))
     if vehicle.residual is not None:

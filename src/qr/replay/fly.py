@@ -17,8 +17,8 @@ import numba as nb
 import numpy as np
 
 from ..frames_compiled import quat_to_R
-from ..sim.plant import (N_X, P_DELAY, P_MARKER, cg_from_tracked, history_buffer, plant_accels, rk4_step,
-                         tracked_pv, true_params)
+from ..plant_state import N_X, P_DELAY, P_MARKER, X_POS, X_QUAT, X_RATE, X_ROTORS, X_VEL
+from ..sim.plant import cg_from_tracked, history_buffer, plant_accels, rk4_step, tracked_pv, true_params
 from .controller import Command, Controller, Setpoint, State
 from .lee import G_MASS, LeeController, lee_step
 from .mixer import GRAMS_PER_NEWTON, CrazyflieMixer, MotorMap, _duties
@@ -73,8 +73,8 @@ def initial_state(vehicle, p, v, q, w, u, P=None) -> np.ndarray:
     (body → world, scalar first), body rate, rotor speeds."""
     P = true_params(vehicle, list(vehicle.effects), residual=False) if P is None else P
     x = np.zeros(N_X)
-    x[0:3], x[3:6], x[6:10], x[10:13], x[13:17] = p, v, np.asarray(q) / np.linalg.norm(q), w, u
-    cg_from_tracked(x, P[P_MARKER:P_MARKER + 3].copy())
+    x[X_POS], x[X_VEL], x[X_QUAT], x[X_RATE], x[X_ROTORS] = p, v, np.asarray(q) / np.linalg.norm(q), w, u
+    cg_from_tracked(x, P[P_MARKER].copy())
     return x
 
 
@@ -129,9 +129,9 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
     dt = 1.0 / sim_rate_hz
     n = int(math.floor((t1 - t0) / dt + 1e-9))
     P = true_params(vehicle, list(vehicle.effects))
-    r = P[P_MARKER:P_MARKER + 3].copy()
-    hist = history_buffer(P, dt, x0[13:17])
-    u0 = x0[13:17].copy()
+    r = P[P_MARKER].copy()
+    hist = history_buffer(P, dt, x0[X_ROTORS])
+    u0 = x0[X_ROTORS].copy()
     zero = np.zeros(3)
     lo, hi = vehicle.rotor_speed_min, vehicle.rotor_speed_max
     ticks = t0 + dt * np.arange(0, n + 1, every)
@@ -149,10 +149,10 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
             ref["yaw_rate"], a, vehicle.rotors.inverse.copy(), lo, hi, near if near is not None else np.zeros((0, 3)),
             max_error_m, hist, u0, r)
         diverged = float(t[m]) if lost else None
-        return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], X[:m, 13:17], thrust[:m],
+        return Flown(t[:m], TP[:m, X_POS], TP[:m, X_VEL], X[:m, X_QUAT], X[:m, X_RATE], X[:m, X_ROTORS], thrust[:m],
                      duties[:m], X[:m], Ucmd[:m], diverged)
     X = np.full((n + 1, N_X), np.nan)
-    TP = np.full((n + 1, 6), np.nan)
+    TP = np.full((n + 1, X_QUAT.start), np.nan)  # the tracked point's p, v
     Ucmd = np.full((n + 1, 4), np.nan)
     thrust = np.full(n + 1, np.nan)
     duties = np.full((n + 1, 4), np.nan)
@@ -164,7 +164,7 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
         pv = tracked_pv(x, r)
         if k % every == 0:
             j = k // every
-            state = State(np.array(pv[0:3]), np.array(pv[3:6]), x[6:10].copy(), x[10:13].copy())
+            state = State(np.array(pv[X_POS]), np.array(pv[X_VEL]), x[X_QUAT].copy(), x[X_RATE].copy())
             sp = Setpoint(ref["p"][j], ref["v"][j], ref["a"][j], ref["j"][j], ref["s"][j], float(ref["yaw"][j]),
                           float(ref["yaw_rate"][j]), float(ref["yaw_acc"][j]))
             cmd = controller(float(t[k]), state, sp)
@@ -184,8 +184,8 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
         if k < n:
             x = rk4_step(x, u_cmd, P, zero, zero, dt, hist, u0, k)
     m = k + 1 if diverged is None else k
-    return Flown(t[:m], TP[:m, 0:3], TP[:m, 3:6], X[:m, 6:10], X[:m, 10:13], X[:m, 13:17], thrust[:m], duties[:m],
-                 X[:m], Ucmd[:m], diverged)
+    return Flown(t[:m], TP[:m, X_POS], TP[:m, X_VEL], X[:m, X_QUAT], X[:m, X_RATE], X[:m, X_ROTORS], thrust[:m],
+                 duties[:m], X[:m], Ucmd[:m], diverged)
 
 
 # actuation vector of the compiled loop: [kind (0 ideal, 1 crazyflie), map (0 fit, 1 firmware), arm, t2t, vbat,
@@ -243,11 +243,12 @@ def _fly_lee(x0, P, G, integ, every, dt, n, rp, rv, ra, rj, ryaw, ryr, a, Binv, 
     """:func:`fly`'s loop with the Lee controller, compiled: (X, TP, Ucmd, thrust, duties, steps, lost); the
     controller's integrators ``integ`` carried on in place."""
     X = np.full((n + 1, N_X), np.nan)
-    TP = np.full((n + 1, 6), np.nan)
+    TP = np.full((n + 1, X_QUAT.start), np.nan)  # the tracked point's p, v
     Ucmd = np.full((n + 1, 4), np.nan)
     thrust = np.full(n + 1, np.nan)
     duties = np.full((n + 1, 4), np.nan)
     zero = np.zeros(3)
+    p, v, q, w = X_POS.start, X_VEL.start, X_QUAT.start, X_RATE.start
     x = x0.copy()
     u_cmd = u0.copy()
     T = np.nan
@@ -256,22 +257,22 @@ def _fly_lee(x0, P, G, integ, every, dt, n, rp, rv, ra, rj, ryaw, ryr, a, Binv, 
         pv = tracked_pv(x, r)
         if k % every == 0:
             j = k // every
-            R = quat_to_R(x[6:10])
-            T, tau, _, _ = lee_step(np.array([pv[0], pv[1], pv[2]]), np.array([pv[3], pv[4], pv[5]]), R,
-                                    x[10:13].copy(), rp[j], rv[j], ra[j], rj[j], ryaw[j], ryr[j], G, integ)
+            R = quat_to_R(x[X_QUAT])
+            T, tau, _, _ = lee_step(np.array([pv[p], pv[p + 1], pv[p + 2]]), np.array([pv[v], pv[v + 1], pv[v + 2]]), R,
+                                    x[X_RATE].copy(), rp[j], rv[j], ra[j], rj[j], ryaw[j], ryr[j], G, integ)
             raw, D = _speeds(T, tau, a, Binv)
             for i in range(4):
                 u_cmd[i] = min(max(raw[i], lo), hi)
         X[k] = x
-        for i in range(6):
+        for i in range(X_QUAT.start):
             TP[k, i] = pv[i]
         Ucmd[k] = u_cmd
         thrust[k] = T
         duties[k] = D
-        s = x[0] + x[1] + x[2] + x[6] + x[7] + x[8] + x[9] + x[10] + x[11] + x[12]
-        lost = not math.isfinite(s) or 1.0 - 2.0 * (x[7] ** 2 + x[8] ** 2) < UPSIDE_DOWN
+        s = x[p] + x[p + 1] + x[p + 2] + x[q] + x[q + 1] + x[q + 2] + x[q + 3] + x[w] + x[w + 1] + x[w + 2]
+        lost = not math.isfinite(s) or 1.0 - 2.0 * (x[q + 1] ** 2 + x[q + 2] ** 2) < UPSIDE_DOWN
         if not lost and near.shape[0] > 0:
-            e = math.sqrt((pv[0] - near[k, 0]) ** 2 + (pv[1] - near[k, 1]) ** 2 + (pv[2] - near[k, 2]) ** 2)
+            e = math.sqrt((pv[p] - near[k, 0]) ** 2 + (pv[p + 1] - near[k, 1]) ** 2 + (pv[p + 2] - near[k, 2]) ** 2)
             lost = e > max_err
         if lost:
             return X, TP, Ucmd, thrust, duties, k, True
@@ -281,21 +282,23 @@ def _fly_lee(x0, P, G, integ, every, dt, n, rp, rv, ra, rj, ryaw, ryr, a, Binv, 
 
 
 def _lost(x, pv, ref, max_error_m) -> bool:
-    if not (math.isfinite(x[0] + x[1] + x[2] + x[6] + x[7] + x[8] + x[9] + x[10] + x[11] + x[12])):
+    p, q, w = X_POS.start, X_QUAT.start, X_RATE.start
+    if not (math.isfinite(x[p] + x[p + 1] + x[p + 2] + x[q] + x[q + 1] + x[q + 2] + x[q + 3] + x[w] + x[w + 1]
+                          + x[w + 2])):
         return True
-    if 1.0 - 2.0 * (x[7] ** 2 + x[8] ** 2) < UPSIDE_DOWN:
+    if 1.0 - 2.0 * (x[q + 1] ** 2 + x[q + 2] ** 2) < UPSIDE_DOWN:
         return True
-    return ref is not None and math.dist(pv[0:3], ref) > max_error_m
+    return ref is not None and math.dist(pv[X_POS], ref) > max_error_m
 
 
 def _acting(X, P, dt) -> np.ndarray:
     """The rotor speeds acting on the body: the motor state, or with an actuator delay the delayed one."""
-    u = X[:, 13:17].copy()
+    u = X[:, X_ROTORS].copy()
     d = P[P_DELAY] / dt
     if d > 0:
         s = np.arange(len(X)) - d
         for i in range(4):
-            u[:, i] = np.interp(s, np.arange(len(X)), X[:, 13 + i], left=X[0, 13 + i])
+            u[:, i] = np.interp(s, np.arange(len(X)), X[:, X_ROTORS.start + i], left=X[0, X_ROTORS.start + i])
     return u
 
 

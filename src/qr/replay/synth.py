@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 
 from ..errors import QrInputError
-from ..sim.plant import P_MARKER, true_params
+from ..plant_state import P_MARKER, X_ROTORS
+from ..sim.plant import true_params
 from .fly import Actuation, accelerations, fly, initial_state
 from .lee import LeeController, LeeGains
 from .setpoints import Setpoints, read_pieces
@@ -54,14 +55,14 @@ def lee_truth(vehicle, effects: list[dict], record: dict, duration: float, rate:
     k = np.arange(0, len(flown.t), every)
     a, alpha = accelerations(flown, true)
     P = true_params(true, list(true.effects))
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    r = P[P_MARKER].copy()
     rows = []
     tau = true.motor_time_constant
     ref = sp.at(flown.t[k], order=0)["p"]
     for j, i in enumerate(k):
         p, v, acc = tracked_point(flown.x[i], a[i], alpha[i], r)
         rows.append([flown.t[i], *p, *v, *acc, *flown.q[i], *flown.w[i], *alpha[i], *flown.u[i],
-                     *((flown.u_cmd[i] - flown.x[i, 13:17]) / tau), *ref[j]])
+                     *((flown.u_cmd[i] - flown.x[i, X_ROTORS]) / tau), *ref[j]])
     truth = pd.DataFrame(rows, columns=columns)
     if not np.all(np.isfinite(truth.to_numpy())):
         raise QrInputError("synthetic flight", "the closed loop diverged", "lower the effects' sizes")

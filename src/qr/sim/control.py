@@ -22,6 +22,7 @@ import numpy as np
 
 from ..frames import G
 from ..frames_compiled import cross, matvec, quat_to_R
+from ..plant_state import X_POS, X_QUAT, X_RATE, X_VEL
 
 # controller parameter vector layout
 C_MASS, C_J, C_BINV, C_KP, C_KD, C_KR, C_KW, C_UMIN, C_UMAX, C_TILT = 0, 1, 4, 20, 23, 26, 29, 32, 33, 34
@@ -98,10 +99,10 @@ def matmul(A, B):
 @nb.njit(cache=True)
 def control(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C):
     """Rotor-speed command (4,) and desired attitude (3, 3) for state ``x``."""
-    p = x[0:3]
-    v = x[3:6]
-    R = quat_to_R(x[6:10])
-    w = x[10:13]
+    p = x[X_POS]
+    v = x[X_VEL]
+    R = quat_to_R(x[X_QUAT])
+    w = x[X_RATE]
     a = a_ref + C[C_KP:C_KP + 3] * (p_ref - p) + C[C_KD:C_KD + 3] * (v_ref - v) + a_comp
     # thrust direction with a floor on vertical thrust and a tilt limit
     F = a.copy()

@@ -35,8 +35,8 @@ from ..replay.fly import ideal_speeds
 from ..replay.lee import lee_step
 from .control import C_UMAX, C_UMIN, Gains, control, controller_params
 from ..frames_compiled import quat_to_R
-from .plant import (P_DELAY, P_MASS, P_TAU, delayed_speeds, history_buffer, plant_accels, rk4_step,
-                    true_params)
+from ..plant_state import N_X, P_DELAY, P_MASS, P_TAU, X_POS, X_QUAT, X_RATE, X_ROTORS, X_VEL
+from .plant import delayed_speeds, history_buffer, plant_accels, rk4_step, true_params
 
 ORACLE = "oracle"
 REF_COLUMNS = ["ref_px", "ref_py", "ref_pz", "ref_vx", "ref_vy", "ref_vz", "ref_yaw"]
@@ -128,7 +128,7 @@ def random_reference(rng: np.random.Generator, duration: float, cfg=None) -> Ref
 def true_force(x, u_eff, u_meas, P, f_ext, mass, ct_row):
     """The ``f_a`` the plant produces now: ``m R^T (a - g) - T_nom(u_meas) e3`` (eq. 4.34, true states)."""
     a, _ = plant_accels(x, u_eff, P, f_ext, np.zeros(3))
-    R = quat_to_R(x[6:10])
+    R = quat_to_R(x[X_QUAT])
     a[2] += G
     f = mass * (R.T @ a)
     T = 0.0
@@ -139,28 +139,28 @@ def true_force(x, u_eff, u_meas, P, f_ext, mass, ct_row):
 
 
 def _signals1(x, R, acc, alpha, u, u_dot) -> Signals:
-    return Signals(R[None], (R.T @ x[3:6])[None], (R.T @ acc)[None], x[10:13][None], alpha[None], u[None],
-                   u_dot[None], x[0:3][None])
+    return Signals(R[None], (R.T @ x[X_VEL])[None], (R.T @ acc)[None], x[X_RATE][None], alpha[None], u[None],
+                   u_dot[None], x[X_POS][None])
 
 
 def initial_state(vehicle, ref) -> np.ndarray:
     """Hover on the reference at t = 0 (position, velocity, yaw), rotors at the nominal hover speed."""
     p, v, _, yaw, _ = ref.at(0.0)
-    x = np.zeros(17)
-    x[0:3] = p
-    x[3:6] = v
-    x[6:10] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
-    x[13:17] = vehicle.hover_speed
+    x = np.zeros(N_X)
+    x[X_POS] = p
+    x[X_VEL] = v
+    x[X_QUAT] = [math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)]
+    x[X_ROTORS] = vehicle.hover_speed
     return x
 
 
 @nb.njit(cache=True)
 def _measure(x, hist, u0, k, d_steps, P, f_inj, u_cmd, tau_m):
     """Rotor speeds acting now, acceleration and angular acceleration with the held force, R, u̇."""
-    u_meas = x[13:17].copy()
+    u_meas = x[X_ROTORS].copy()
     u_eff = delayed_speeds(hist, u0, k, 0.0, d_steps) if d_steps > 0 else u_meas
     acc, alpha = plant_accels(x, u_eff, P, f_inj, np.zeros(3))
-    return u_meas, u_eff, acc, alpha, quat_to_R(x[6:10]), (u_cmd - u_meas) / tau_m
+    return u_meas, u_eff, acc, alpha, quat_to_R(x[X_QUAT]), (u_cmd - u_meas) / tau_m
 
 
 # divergence codes
@@ -171,7 +171,7 @@ OK, NOT_FINITE, POSITION, SPEED, ACCEL = 0, 1, 2, 3, 4
 def _lee(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C, L, integ, Binv):
     """The Lee controller's rotor-speed command (the vehicle's inverse rotor map, clipped to its limits) and its
     desired attitude; the disturbance estimate enters the acceleration feed-forward as the firmware's does."""
-    T, tau, Rd, _ = lee_step(x[0:3].copy(), x[3:6].copy(), quat_to_R(x[6:10]), x[10:13].copy(), p_ref, v_ref,
+    T, tau, Rd, _ = lee_step(x[X_POS].copy(), x[X_VEL].copy(), quat_to_R(x[X_QUAT]), x[X_RATE].copy(), p_ref, v_ref,
                              a_ref + a_comp, np.zeros(3), yaw, yaw_rate, L, integ)
     u = ideal_speeds(Binv, T, tau)
     for i in range(4):
@@ -184,22 +184,23 @@ def _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc
          m_nom, ct_row, C, P, dt, hist, u0, limits, out, j, do_log, L, integ, Binv):
     """Divergence check, control with compensation, logging, one RK4 step."""
     zero = np.zeros(3)
-    for i in range(17):
+    for i in range(N_X):
         if not math.isfinite(x[i]):
             return x, u_meas, NOT_FINITE, 0.0
     for i in range(3):
         if not (math.isfinite(acc[i]) and math.isfinite(f_inj[i]) and math.isfinite(f_est[i])):
             return x, u_meas, NOT_FINITE, 0.0
-    e = math.sqrt((x[0] - p_ref[0]) ** 2 + (x[1] - p_ref[1]) ** 2 + (x[2] - p_ref[2]) ** 2)
+    p, v = X_POS.start, X_VEL.start
+    e = math.sqrt((x[p] - p_ref[0]) ** 2 + (x[p + 1] - p_ref[1]) ** 2 + (x[p + 2] - p_ref[2]) ** 2)
     if e > limits[0]:
         return x, u_meas, POSITION, e
-    sp = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2)
+    sp = math.sqrt(x[v] ** 2 + x[v + 1] ** 2 + x[v + 2] ** 2)
     if sp > limits[1]:
         return x, u_meas, SPEED, sp
     am = math.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2)
     if am > limits[2] * G:
         return x, u_meas, ACCEL, am / G
-    R = quat_to_R(x[6:10])
+    R = quat_to_R(x[X_QUAT])
     a_comp = -(R @ f_est) / m_nom
     if L.shape[0] > 0:
         u_cmd, Rd = _lee(x, p_ref, v_ref, a_ref, yaw, yaw_rate, a_comp, C, L, integ, Binv)
@@ -209,10 +210,11 @@ def _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc
         f_true = true_force(x, u_eff, u_meas, P, f_inj, m_nom, ct_row)
         row = out[j]
         row[0] = t
-        row[1:7] = x[0:6]
+        row[1:4] = x[X_POS]
+        row[4:7] = x[X_VEL]
         row[7:10] = acc
-        row[10:14] = x[6:10]
-        row[14:17] = x[10:13]
+        row[10:14] = x[X_QUAT]
+        row[14:17] = x[X_RATE]
         row[17:20] = alpha
         row[20:24] = u_meas
         row[24:28] = u_dot
@@ -250,7 +252,7 @@ def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) 
     ct_row = veh.rotors.matrix[0].copy()
     tau_m = float(P[P_TAU])
     x = initial_state(veh, ref)
-    u0 = x[13:17].copy()
+    u0 = x[X_ROTORS].copy()
     hist = history_buffer(P, dt, u0)
     d_steps = float(P[P_DELAY] / dt)
     lim = cfg.limits

@@ -22,7 +22,8 @@ from ..flight import POSITION, QUATERNION, ROTORS, write_flight
 from ..frames import quat_multiply
 from ..vehicle import save_vehicle, vehicle_from_dict
 from .control import Gains, control, controller_params, for_lag
-from .plant import P_DELAY, P_MARKER, P_TAU, history_buffer, hover_state, plant_accels, rk4_step, tracked_point, true_params
+from ..plant_state import P_DELAY, P_MARKER, P_TAU, X_QUAT, X_RATE, X_ROTORS
+from .plant import history_buffer, hover_state, plant_accels, rk4_step, tracked_point, true_params
 from .trajectory import RandomTrajectory, TrajectoryConfig, random_trajectory, reference
 
 MIN_SIM_RATE = 500.0
@@ -62,8 +63,8 @@ def _fly(x0, P, C, traj_args, dt, n_steps, log_every, hist):
     n_log = n_steps // log_every + 1
     out = np.empty((n_log, 31))
     x = x0.copy()
-    u0 = x0[13:17].copy()
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    u0 = x0[X_ROTORS].copy()
+    r = P[P_MARKER].copy()
     zero = np.zeros(3)
     j = 0
     for k in range(n_steps + 1):
@@ -82,18 +83,18 @@ def _fly(x0, P, C, traj_args, dt, n_steps, log_every, hist):
                     M = hist.shape[0]
                     ue = (1 - fr) * hist[i0 % M] + fr * hist[(i0 + 1) % M]
             else:
-                ue = x[13:17].copy()
+                ue = x[X_ROTORS].copy()
             a, alpha = plant_accels(x, ue, P, zero, zero)
             pm, vm, am = tracked_point(x, a, alpha, r)
             out[j, 0] = t
             out[j, 1:4] = pm
             out[j, 4:7] = vm
             out[j, 7:10] = am
-            out[j, 10:14] = x[6:10]
-            out[j, 14:17] = x[10:13]
+            out[j, 10:14] = x[X_QUAT]
+            out[j, 14:17] = x[X_RATE]
             out[j, 17:20] = alpha
-            out[j, 20:24] = x[13:17]
-            out[j, 24:28] = (u_cmd - x[13:17]) / P[P_TAU]
+            out[j, 20:24] = x[X_ROTORS]
+            out[j, 24:28] = (u_cmd - x[X_ROTORS]) / P[P_TAU]
             out[j, 28:31] = p_ref
             j += 1
         if k < n_steps:
@@ -118,7 +119,7 @@ def simulate_truth(vehicle, effects: list[dict], cfg: SynthConfig,
     C = controller_params(vehicle, for_lag(cfg.gains, P[P_DELAY] + P[P_TAU]))
     p0, _, _, y0, _ = traj.sample(np.array([0.0]))
     x0 = hover_state(vehicle, p0[0], float(y0[0]))
-    hist = history_buffer(P, dt, x0[13:17])
+    hist = history_buffer(P, dt, x0[X_ROTORS])
     out = _fly(x0, P, C, traj.args(), dt, n_steps, log_every, hist)
     if not np.all(np.isfinite(out)):
         t_bad = out[np.flatnonzero(~np.isfinite(out).all(axis=1))[0], 0]

@@ -195,10 +195,11 @@ def training_size(res, parts, H: int, vehicle) -> dict:
     estimates moved from the tracked point to the CG; rotor speeds those acting there (delay applied)."""
     from .. import residual as rs
     from ..frames import quat_to_rot, to_body
-    from ..sim.plant import P_MARKER, cg_from_tracked, true_params
+    from ..plant_state import P_MARKER
+    from ..sim.plant import cg_from_tracked, true_params
 
     P = true_params(vehicle, vehicle.effects, residual=False)
-    r = P[P_MARKER:P_MARKER + 3].copy()
+    r = P[P_MARKER].copy()
     X, U, flights = [], [], []
     for pc in parts:
         if not len(pc.train):
