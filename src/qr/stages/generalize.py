@@ -27,7 +27,7 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     of ``qr learn residual``.  Returns ``fold.json``'s document."""
     from ..atomic import write_json
     from .evaluate import evaluate_held_out, evaluate_learned, held_out
-    from .learn_residual import train_held_out
+    from .learn_residual_sets import train_held_out
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

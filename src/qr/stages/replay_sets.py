@@ -32,7 +32,7 @@ def _replayable(tr, trajectory_files: dict) -> bool:
 def replayed_flights(set_cfg: dict, trajectory_files: dict) -> list[str]:
     """The flights the workflow replays: held out by the rollout's rule (the repeat split: the models the
     workflow writes for the set are trained on the others), with a trajectory file and a time scale."""
-    from .evaluate import held_out_by_flight
+    from ..holdout import held_out_by_flight
 
     _, held_out = held_out_by_flight(set_cfg["flights"])
     return [f for f in held_out if _replayable(flight_trajectory(set_cfg, f), trajectory_files)]
