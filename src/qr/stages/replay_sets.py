@@ -1,5 +1,5 @@
 """The workflow's replays (workflow/rules/replay.smk): each flight set's held-out flights (those the rollout
-holds out, :func:`qr.stages.evaluate.held_out_by_flight`, with a trajectory in the data set's file) replayed
+holds out, :func:`qr.holdout.held_out_by_flight`, with a trajectory in the data set's file) replayed
 under the set's controller with every model the workflow wrote for it, and one table of them
 (``results/tables/replay.csv``).  The held-out flights repeat trajectories the models were trained on (the same
 figure-8 at the same time scales): an interpolation figure, said so in the table's title."""
