@@ -36,7 +36,7 @@ def main():
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
     from qr.sim.synth import SynthConfig, write_synth
-    from qr.stages.evaluate import estimated_pieces
+    from qr.pieces import estimated_pieces
     from qr.vehicle import load_vehicle
 
     v = load_vehicle("conf/vehicle/asctec_hummingbird.yaml")

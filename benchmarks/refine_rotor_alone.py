@@ -38,7 +38,7 @@ def main():
     from qr.rollout import MODEL, RATE_FROZEN, EvaluateConfig, at, pool, score_plant, summary, windows
     from qr.sim.plant import true_params
     from qr.sim.synth import SynthConfig, write_synth
-    from qr.stages.evaluate import estimated_pieces
+    from qr.pieces import estimated_pieces
     from qr.vehicle import load_vehicle
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -60,7 +60,7 @@ def windows_of(path, v):
     from qr.diagnose.refine import balance_rows, diagnosis_windows
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.stages.evaluate import estimated_pieces
+    from qr.pieces import estimated_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
     st, ms, _ = zip(*estimated_pieces(path, read_flight(path), v, EvaluateConfig(horizon=H), filt))

@@ -34,7 +34,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("QR_TRACKING", "off")
 
 from qr import rollout  # noqa: E402
-from qr.stages.evaluate import held_out_by_flight  # noqa: E402
+from qr.holdout import held_out_by_flight  # noqa: E402
 from qr.stages.evaluate_sets import evaluate_held_out  # noqa: E402
 
 # conf/workflow.yaml: the measured diagnoses' overrides, and the held-out rule's learned torque remainder
@@ -86,7 +86,7 @@ def main():
 def _with_residual(a, flights, nis, tmp):
     """Train (or carry) the rollout-trained residual and evaluate every model on the held-out flights again."""
     from qr.stages.evaluate import run_evaluation
-    from qr.stages.learn_residual import train_held_out
+    from qr.stages.learn_residual_sets import train_held_out
     from qr.vehicle import load_vehicle, save_vehicle
 
     _, test = held_out_by_flight(flights)

@@ -198,10 +198,15 @@ def _residual_parser() -> argparse.ArgumentParser:
 
 
 def _cmd_learn_residual(a) -> None:
-    from .stages.learn_residual import main
-
     flights, overrides = _flights_and_overrides(a, "learn residual")
-    main(flights, a.vehicle, a.out, overrides + (["-m"] if a.multirun else []), force=a.force)
+    if a.multirun:
+        from .stages.learn_residual_sets import sweep
+
+        sweep(flights, a.vehicle, a.out, overrides, force=a.force)
+    else:
+        from .stages.learn_residual import run_residual
+
+        run_residual(flights, a.vehicle, a.out, overrides, force=a.force)
 
 
 def _cmd_hydra_stage(a) -> None:

@@ -12,7 +12,7 @@
 What each flight flies comes from the data-set file (:mod:`qr.flightsets`): ``evaluate.split.data``
 (a ``conf/data/*.yaml``) and ``evaluate.split.set``, or, in the workflow, the set's own description.
 
-Validation (early stopping, :mod:`qr.stages.learn_residual`) is drawn from the training flights only:
+Validation (early stopping, :mod:`qr.residual_training`) is drawn from the training flights only:
 for ``repeat`` every k-th training flight (as before); for ``trajectory`` and ``speed`` whole
 trajectories of the training side (every k-th distinct trajectory, at least one), so the validation
 flights repeat no training trajectory either — a scored flight is never opened.
@@ -242,6 +242,19 @@ def validation(train, split: SplitConfig, fraction: float, infos: dict[str, Flig
             return [f for f in train if f not in val], val, "trajectory"
     val = train[k - 1::k] or train[-1:]
     return [f for f in train if f not in val], val, "flight"
+
+
+def held_out(flights, split: SplitConfig | None = None, require: bool = True) -> Assignment:
+    """The held-out protocol's :class:`Assignment` of ``flights`` under ``split`` (``evaluate.split``;
+    default ``repeat``: every third flight)."""
+    return assign([str(f) for f in flights], split or SplitConfig(), require=require)
+
+
+def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
+    """(training, held-out) flights of the repeat split: every third flight held out (the last one of fewer
+    than three)."""
+    a = held_out(flights, require=False)
+    return list(a.train), list(a.test)
 
 
 def describe(assignment: Assignment, infos: dict[str, FlightInfo] | None) -> str:

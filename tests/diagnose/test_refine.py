@@ -32,7 +32,7 @@ def _windows(path, vehicle, horizon, rate):
     from qr.diagnose.refine import diagnosis_windows
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.stages.evaluate import estimated_pieces
+    from qr.pieces import estimated_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
     st, ms = zip(*[(s, m) for s, m, _ in estimated_pieces(path, read_flight(path), vehicle,

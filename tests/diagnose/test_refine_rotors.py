@@ -34,7 +34,7 @@ def _pieces(path, vehicle):
     from qr.config import compose, to_dict
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.stages.evaluate import estimated_pieces
+    from qr.pieces import estimated_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
     return estimated_pieces(path, read_flight(path), vehicle, EvaluateConfig(horizon=H), filt)

@@ -132,7 +132,7 @@ def test_the_same_vehicle_twice_is_refused(tmp_path, capsys):
 
 
 def test_flights_held_out_by_flight():
-    from qr.stages.evaluate import held_out_by_flight
+    from qr.holdout import held_out_by_flight
 
     fl = [f"f{i}" for i in range(7)]
     train, test = held_out_by_flight(fl)

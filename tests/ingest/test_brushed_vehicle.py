@@ -22,7 +22,7 @@ def _brushed():
 def test_the_brushed_thrust_coefficient_is_the_training_flights_hover_balance():
     from qr.airborne import hover_thrust_coeff
     from qr.ingest.cf_usd import read
-    from qr.stages.evaluate import held_out_by_flight
+    from qr.holdout import held_out_by_flight
     from qr.vehicle import load_vehicle
 
     s = _brushed()

@@ -108,7 +108,7 @@ def test_training_reads_only_its_flights_and_repeats_bit_for_bit(flights, tmp_pa
     garbage accelerometer readings (the residual never reads an acceleration); another seed another model."""
     import shutil
 
-    from qr.stages.learn_residual import train_held_out
+    from qr.stages.learn_residual_sets import train_held_out
 
     names = ["a", "b", "c"]
     for n in names:
@@ -139,7 +139,7 @@ def test_under_a_trajectory_split_validation_is_a_whole_training_trajectory_and_
 
     import yaml
 
-    from qr.stages.learn_residual import train_held_out
+    from qr.stages.learn_residual_sets import train_held_out
 
     for n in ("a", "b", "c"):
         shutil.copy(flights / n / "flight.csv", tmp_path / f"{n}.csv")
@@ -182,7 +182,7 @@ def test_a_carried_network_flies_on_another_vehicle_file(flights, trained, tmp_p
     dropped, carrying the trained network: the same weights, from wherever the new file is read."""
     import shutil
 
-    from qr.stages.learn_residual import carry_residual
+    from qr.stages.learn_residual_sets import carry_residual
     from qr.vehicle import load_vehicle, save_vehicle
 
     _, trained_out = trained

@@ -1,7 +1,7 @@
 """The sentences of ``qr learn residual``'s report and log, each generated from the numbers it states
 (small hand-made cases; the real run is tests/learn/test_learn_residual.py)."""
 
-from qr.stages.learn_residual import change_sentence, kept_sentence, split_sentence
+from qr.residual_training.sentences import change_sentence, kept_sentence, split_sentence
 
 Q = ("p", "v", "R", "w")
 

@@ -2,7 +2,7 @@
 import sys
 from pathlib import Path
 
-from qr.stages.learn_residual import carry_residual
+from qr.stages.learn_residual_sets import carry_residual
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -2,7 +2,7 @@
 import sys
 from pathlib import Path
 
-from qr.stages.learn_residual import train_held_out
+from qr.stages.learn_residual_sets import train_held_out
 
 # on the training diagnosis's (refined) physical model; the carry-to set: fine-tuning the carried network
 vehicle = (Path(snakemake.input.carried) / "hybrid_vehicle.yaml" if snakemake.input.carried

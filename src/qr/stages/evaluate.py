@@ -12,8 +12,10 @@ import sys
 
 import pandas as pd
 
-from ..rollout import EvaluateConfig, pieces
+from ..rollout import EvaluateConfig
 from ..errors import QrInputError
+from ..holdout import held_out
+from ..pieces import estimated_pieces
 
 OUTPUTS = ("evaluation.json", "report.md", "figures/")
 
@@ -81,45 +83,3 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     return doc
 
 
-def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
-                     report: dict | None = None, stored=None, say=lambda msg: None) -> list:
-    """The evaluate protocol's pieces of one flight: ``(states, measured, keep)`` per airborne, gap-free
-    segment (:func:`qr.rollout.pieces`), the start states from the filter stage's estimate.
-
-    Split like ``qr diagnose`` splits a flight; each segment filtered with ``filter_cfg`` (the tuned noise
-    values of the filter stage's ``report`` frozen, when given) or, with ``stored`` (the filter stage's
-    cross-fit file, with ``report``), its estimate read from there where it matches.  The one path by
-    which ``qr evaluate`` and ``qr learn residual`` get their windows."""
-    from ..estimation.crossfit import Estimates, fixed_settings
-    from ..estimation import estimate
-    from ..segments import flight_segments
-
-    fs = flight_segments(flight, vehicle, 2 * ecfg.trim_s + 0.5, path)
-    settings = fixed_settings(filter_cfg, report) if report else filter_cfg
-    stored = Estimates(stored, filter_cfg, report, vehicle) if stored is not None and report else None
-    out = []
-    for seg in fs.used:
-        got = stored.get(seg.window[0]) if stored else None
-        say(f"estimates of {path} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
-            + ("read from the filter stage" if got else "filtering"))
-        st = got[0] if got else estimate(seg.rows, vehicle, settings)[0]
-        out.append(pieces(st, seg.rows, ecfg.trim_s))
-    if not out:
-        raise QrInputError(path, "no airborne, gap-free segment is long enough to evaluate",
-                           "give a longer flight, or a smaller evaluate.trim_s")
-    return out
-
-
-def held_out(flights, split=None, require: bool = True):
-    """The held-out protocol's :class:`qr.holdout.Assignment` of ``flights`` under ``split`` (a
-    :class:`qr.holdout.SplitConfig`, ``evaluate.split``; default ``repeat``: every third flight)."""
-    from ..holdout import SplitConfig, assign
-
-    return assign([str(f) for f in flights], split or SplitConfig(), require=require)
-
-
-def held_out_by_flight(flights: list[str]) -> tuple[list[str], list[str]]:
-    """(training, held-out) flights of the repeat split: every third flight held out (the last one of fewer
-    than three)."""
-    a = held_out(flights, require=False)
-    return list(a.train), list(a.test)

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from .evaluate import held_out, run_evaluation
+from ..holdout import held_out
+from .evaluate import run_evaluation
 
 HELD_OUT_MODELS = "held_out_models"  # (in the training diagnosis's folder)
 FOLD_SCHEMA = "qr.fold/1"
@@ -40,7 +41,7 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal, extended,
     refined and hybrid vehicles on the held-out ones (with ``single_overrides`` instead of ``overrides`` when
     one flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use).  ``split``:
-    which flights are held out (:func:`qr.stages.evaluate.held_out`)."""
+    which flights are held out (:func:`qr.holdout.held_out`)."""
     from ..errors import QrInputError
     from .diagnose import run_diagnosis
 
@@ -120,7 +121,7 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     residual``'s) and scored on the same flights (``OUT/residual/``, ``OUT/learned/``); ``OUT/fold.json``
     (the split and what each step took, s) last.  Returns ``fold.json``'s document."""
     from ..atomic import write_json
-    from .learn_residual import train_held_out
+    from .learn_residual_sets import train_held_out
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,5 @@
 """The workflow's replays (workflow/rules/replay.smk): each flight set's held-out flights (those the rollout
-holds out, :func:`qr.stages.evaluate.held_out_by_flight`, with a trajectory in the data set's file) replayed
+holds out, :func:`qr.holdout.held_out_by_flight`, with a trajectory in the data set's file) replayed
 under the set's controller with every model the workflow wrote for it, and one table of them
 (``results/tables/replay.csv``).  The held-out flights repeat trajectories the models were trained on (the same
 figure-8 at the same time scales): an interpolation figure, said so in the table's title."""
@@ -32,7 +32,7 @@ def _replayable(tr, trajectory_files: dict) -> bool:
 def replayed_flights(set_cfg: dict, trajectory_files: dict) -> list[str]:
     """The flights the workflow replays: held out by the rollout's rule (the repeat split: the models the
     workflow writes for the set are trained on the others), with a trajectory file and a time scale."""
-    from .evaluate import held_out_by_flight
+    from ..holdout import held_out_by_flight
 
     _, held_out = held_out_by_flight(set_cfg["flights"])
     return [f for f in held_out if _replayable(flight_trajectory(set_cfg, f), trajectory_files)]
