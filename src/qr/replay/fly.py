@@ -20,7 +20,7 @@ from ..frames_compiled import quat_to_R
 from ..plant_state import N_X, P_DELAY, P_MARKER, X_POS, X_QUAT, X_RATE, X_ROTORS, X_VEL
 from ..sim.plant import cg_from_tracked, history_buffer, plant_accels, rk4_step, tracked_pv, true_params
 from .controller import Command, Controller, Setpoint, State
-from .lee import G_MASS, LeeController, lee_step
+from .lee import LeeController, lee_step
 from .mixer import GRAMS_PER_NEWTON, CrazyflieMixer, MotorMap, _duties
 from .setpoints import Setpoints
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from ..rollout import QUANTITIES
 
 if TYPE_CHECKING:
     from .training import ResidualTraining

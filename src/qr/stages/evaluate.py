@@ -10,11 +10,6 @@ from __future__ import annotations
 
 import sys
 
-import pandas as pd
-
-from ..rollout import EvaluateConfig
-from ..errors import QrInputError
-from ..holdout import held_out
 from ..pieces import estimated_pieces
 
 OUTPUTS = ("evaluation.json", "report.md", "figures/")
