@@ -47,6 +47,7 @@ class IntakeSettings:
     filter: dict  # the filter settings the estimates are made with (resolved)
     skip_checks: tuple[str, ...] = ()  # convention checks turned off
     how_to_skip: str = "diagnose.skip_checks=[{name}] at the end of the command"  # said in a refusal
+    halves: bool = True  # the cross-fitting halves too (a diagnosis); False: the full estimate alone (a rollout)
 
 
 @dataclass(frozen=True)
@@ -104,11 +105,11 @@ def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: Inta
         on_checked()
     flights = Flights(list(names), list(measured), split, checks)
     return Intake(flights, _estimates([fs.used for fs in split], [Path(f).name for f in names], vehicle,
-                                      settings.filter, reports, stored, say))
+                                      settings.filter, reports, stored, say, settings.halves))
 
 
 def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, reports: list | None,
-               stored: list | None, say) -> tuple[SegmentEstimate, ...]:
+               stored: list | None, say, halves: bool) -> tuple[SegmentEstimate, ...]:
     """Every flight's used ``segments`` estimated: read from the flight's cross-fit file where it was made with
     the same settings, else filtered (:func:`prepare_flight`), the longest segment first."""
     from .estimation.crossfit import Estimates, SegmentEstimate, prepare_flight
@@ -120,13 +121,13 @@ def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, repo
         for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
             got = file.get(seg.window[0]) if file else None
             if got:
-                (st, pair), source = got, "read from the filter stage"
+                (st, pair), source = (got[0], got[1] if halves else None), "read from the filter stage"
             else:
-                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
+                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report, halves)
                 source = f"filter={filter_cfg.get('name', '?')}"
             say(f"estimates of {names[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
                 f"{source}")
-            for table in (st, *pair):
+            for table in (st, *(pair or ())):
                 table.attrs["flight"] = i
             out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
     return tuple(sorted(out, key=lambda e: (e.flight, e.window[0])))

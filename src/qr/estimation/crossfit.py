@@ -102,19 +102,20 @@ def key(filter_cfg: dict, report: dict, vehicle) -> str:
                       sort_keys=True, default=str)
 
 
-def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
+def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None, halves: bool = True):
     """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
 
     ``report``: the filter stage's report of this flight (its tuned noise values are
-    reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
+    reused instead of tuning again).  Returns ``(states, (even, odd), report)``; without ``halves``
+    ``(states, None, report)`` (a rollout's start states need no cross-fitting).
     """
     if report is None:
         report = {"tuning": tuned_noise(flight, vehicle, filter_cfg)}
     matched = matched_settings(filter_cfg, report)
     # the full flight and its two halves: three independent filters, run side by side
-    st, even, odd = thread_map(lambda f: _states(f, vehicle, matched),
-                               (flight, _half(flight, 0), _half(flight, 1)))
-    return st, (even, odd), report
+    st, *pair = thread_map(lambda f: _states(f, vehicle, matched),
+                           (flight, _half(flight, 0), _half(flight, 1)) if halves else (flight,))
+    return st, tuple(pair) if halves else None, report
 
 
 def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) -> dict | None:
@@ -161,7 +162,7 @@ class SegmentEstimate:
     window: tuple[float, float]  # first and last stamp, the log's own time
     rows: pd.DataFrame  # the measured rows the filters read
     states: pd.DataFrame
-    halves: tuple[pd.DataFrame, pd.DataFrame]  # (even, odd)
+    halves: tuple[pd.DataFrame, pd.DataFrame] | None  # (even, odd); None: not asked for (qr.intake)
 
 
 class Estimates:
