@@ -4,8 +4,8 @@
 
 Ingests and filters the first N flights of a set of the Crazyflie data (QR_DATA, else
 ../shared/data/imrclab-crazyflie) twice: in N fresh processes per stage (as the workflow's per-flight
-rules did) and in one process per stage (its batch rules, qr.stages.ingest.ingest_batch and
-qr.stages.filter.run_batch), each process importing Snakemake's script preamble as a workflow job does.
+rules did) and in one process per stage (its batch rules, qr.stages.ingest_sets.ingest_batch and
+qr.stages.filter_sets.run_batch), each process importing Snakemake's script preamble as a workflow job does.
 Prints the user+system CPU time of the processes (little changed by other load on the machine) and their
 wall time; the difference is the start-up a batch saves.
 """
@@ -61,9 +61,9 @@ def main() -> None:
                          (("flight", ".parquet"), ("states", ".states.parquet"), ("nis", ".nis.json"),
                           ("crossfit", ".crossfit.parquet"))}
                     src = [raw[flights.index(f)] for f in g]
-                    times["ingest"].append(_job(f"from qr.stages.ingest import ingest_batch\n"
+                    times["ingest"].append(_job(f"from qr.stages.ingest_sets import ingest_batch\n"
                                                 f"ingest_batch({src!r}, {vehicle!r}, {p['flight']!r})"))
-                    times["filter"].append(_job(f"from qr.stages.filter import run_batch\n"
+                    times["filter"].append(_job(f"from qr.stages.filter_sets import run_batch\n"
                                                 f"run_batch({p['flight']!r}, {vehicle!r}, {p['states']!r}, "
                                                 f"{p['nis']!r}, {p['crossfit']!r}, {g!r}, ['filter=auto'])"))
                 line = "; ".join(f"{stage} CPU {sum(c for c, _ in t):.1f} s, wall {sum(w for _, w in t):.1f} s"

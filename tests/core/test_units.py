@@ -117,10 +117,11 @@ def written(tmp_path_factory):
     from qr.report.overview import overview_html
     from qr.sim import figures as sim_figures
     from qr.sim.synth import SynthConfig, write_synth
-    from qr.stages import filter as filter_stage
-    from qr.stages.diagnose import run_diagnosis, summary
+    from qr.stages import filter_sets as filter_stage
+    from qr.stages.diagnose import run_diagnosis
+    from qr.stages.diagnose_sets import summary
     from qr.stages.evaluate import run_evaluation
-    from qr.stages.ingest import write_ingest_summary
+    from qr.stages.ingest_sets import write_ingest_summary
     from qr.stages.learn_residual import run_residual
 
     d = tmp_path_factory.mktemp("units")

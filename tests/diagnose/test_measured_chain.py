@@ -16,7 +16,7 @@ import pytest
 from conftest import DATA, VEHICLES
 from decisions import assert_same_decisions, diagnose_elsewhere
 from qr.stages.diagnose import run_diagnosis
-from qr.stages.diagnose import carry_over
+from qr.stages.diagnose_sets import carry_over
 from qr.stages.ingest import ingest
 from qr.vehicle import load_vehicle
 

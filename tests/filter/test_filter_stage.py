@@ -13,7 +13,7 @@ from conftest import ROOT, VEHICLES
 from qr import states as state_table
 from qr.errors import QrInputError
 from qr.estimation import estimate
-from qr.stages.filter import run_with_overrides
+from qr.stages.filter_sets import run_with_overrides
 from qr.flight import write_flight
 from qr.sim.synth import SynthConfig, synthesize
 
@@ -109,7 +109,7 @@ def test_unknown_config_key_names_the_known_ones(flight_csv):
 
 def test_thesis_style_figures_nis_figure_and_summary(flight_csv, tmp_path):
     from qr.estimation.plots import FIGURES, nis_figure
-    from qr.stages.filter import figures, summarize
+    from qr.stages.filter_sets import figures, summarize
 
     report = run_with_overrides(flight_csv, VEHICLES / "asctec_hummingbird.yaml", tmp_path / "f1.parquet",
                                 tmp_path / "f1.nis.json", [])

@@ -19,7 +19,7 @@ def test_the_data_sets_metadata_gives_each_flights_trajectory_and_time_scale():
     qr.flightsets (the sets' ``flown:`` groups, the one record of what each flight flew); the payload's
     sideways flights have no trajectory file and are not replayed."""
     from qr.flightsets import flight_info
-    from qr.stages.replay_sets import flight_trajectory, replayed_flights
+    from qr.replay.sets import flight_trajectory, replayed_flights
 
     d = data_file()
     bl, pl = d["sets"]["brushless"], d["sets"]["payload"]
@@ -37,7 +37,7 @@ def test_the_data_sets_metadata_gives_each_flights_trajectory_and_time_scale():
 
 
 def test_the_replays_overrides_carry_the_sources_facts():
-    from qr.stages.replay_sets import overrides_of
+    from qr.replay.sets import overrides_of
 
     d = data_file()
     o = overrides_of(d["sets"]["payload"], ["eckart08", "eckart13"], d["trajectory_files"])

@@ -61,7 +61,7 @@ def test_the_overview_page_leads_with_the_named_effects_and_holds_every_table_an
 
 
 def _row(name, named, nominal, noise, extended=None, replay=(0.43, 0.17)):
-    f = lambda xs: " / ".join(f"{x:.4f}" for x in xs)  # noqa: E731  (as qr.stages.diagnose.summary writes them)
+    f = lambda xs: " / ".join(f"{x:.4f}" for x in xs)  # noqa: E731  (as qr.stages.diagnose_sets.summary writes them)
     return {"set": name, "flights": 30, "samples": 19078, "named": named, "nominal_force_rmse": f(nominal),
             "extended_force_rmse": f(extended or nominal), "noise_force_rmse": f(noise),
             "nominal_torque_rmse": "1.00e-04 / 2.00e-04 / 3.00e-05", "extended_torque_rmse": "9.00e-05 / 1.00e-04 / 3.00e-05",

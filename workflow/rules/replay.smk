@@ -6,7 +6,7 @@
 # commands give the setpoints' start time, start point and the controller's mass.
 
 
-from qr.stages.replay_sets import overrides_of, replayed_flights
+from qr.replay.sets import overrides_of, replayed_flights
 
 TRAJECTORY_FILES = {k: str(v) if Path(str(v)).is_absolute() else os.path.normpath(DATA_ROOT / str(v))
                     for k, v in (DATA.get("trajectory_files") or {}).items()}  # relative to the data root

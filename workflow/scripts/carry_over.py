@@ -2,7 +2,7 @@
 import sys
 from pathlib import Path
 
-from qr.stages.diagnose import carry_over
+from qr.stages.diagnose_sets import carry_over
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -1,7 +1,7 @@
 """Snakemake rule `diagnose_each`: one diagnosis per flight of a set, and their table."""
 import sys
 
-from qr.stages.diagnose import diagnose_each
+from qr.stages.diagnose_sets import diagnose_each
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

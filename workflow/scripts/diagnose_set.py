@@ -1,7 +1,7 @@
 """Snakemake rule `diagnose_set`: all flights of a set in one diagnosis (+ MLflow run)."""
 import sys
 
-from qr.stages.diagnose import diagnose_set
+from qr.stages.diagnose_sets import diagnose_set
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

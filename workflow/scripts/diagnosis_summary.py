@@ -1,7 +1,7 @@
 """Snakemake rule `diagnosis_summary`: the set diagnoses side by side."""
 import sys
 
-from qr.stages.diagnose import summary
+from qr.stages.diagnose_sets import summary
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

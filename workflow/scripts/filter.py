@@ -2,7 +2,7 @@
 (their MLflow runs: filter_summary)."""
 import sys
 
-from qr.stages.filter import run_batch
+from qr.stages.filter_sets import run_batch
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -2,7 +2,7 @@
 import sys
 from pathlib import Path
 
-from qr.stages.filter import figures
+from qr.stages.filter_sets import figures
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -1,7 +1,7 @@
 """Snakemake rule `filter_summary`: an MLflow run per filtered flight, and the NIS table (+ its run)."""
 import sys
 
-from qr.stages.filter import summarize, track_runs
+from qr.stages.filter_sets import summarize, track_runs
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

@@ -1,7 +1,7 @@
 """Snakemake rule `summary`: per-flight and per-set tables, a figure, one MLflow run."""
 import sys
 
-from qr.stages.ingest import write_ingest_summary
+from qr.stages.ingest_sets import write_ingest_summary
 
 with open(snakemake.log[0], "w") as log:
     sys.stderr = log

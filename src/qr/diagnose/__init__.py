@@ -6,9 +6,9 @@ standard errors), ``held_out`` (what the held-out part supports; whether the mod
 flights), ``replay`` (replay and rollout), ``remainder`` (structure beyond the catalog, the learned
 torque remainder), ``accelerometer``, ``coefficients`` (statements about the vehicle file); ``core`` holds
 the algebra they share, ``noise`` the noise floor, ``slow_torque`` the slow torque balance, ``flights``
-the flights' checks, ``settings`` the settings (DiagnoseConfig).  ``document`` makes diagnosis.json of a
-:class:`Diagnosis`, ``report`` its report.md and figures.  The estimates it reads are the filter
-stage's (:mod:`qr.estimation.crossfit`).  These take and return arrays and dataframes; the stage that
+how it takes its flights (:mod:`qr.intake`), ``settings`` the settings (DiagnoseConfig).  ``document`` makes
+diagnosis.json of a :class:`Diagnosis`, ``report`` its report.md and figures (``drawing`` starts them early).
+The estimates it reads are the filter stage's (:mod:`qr.estimation.crossfit`), taken by the intake.  These take and return arrays and dataframes; the stage that
 reads and writes files is :mod:`qr.stages.diagnose`.
 """
 

@@ -27,13 +27,13 @@ from ..estimation.crossfit import SegmentEstimate
 from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
 from ..identification.normal_equations import Columns
+from ..intake import Flights
 from ..rollout import EvaluateConfig
 from ..vehicle import ROTOR_PROPERTIES, Vehicle, vehicle_from_dict
 from .accelerometer import accelerometer_check
 from .coefficients import CHECKED_AGAINST, coefficient_checks, evidence
 from .core import block_stats
 from .fit import Fit, NamedEffect, identify
-from .flights import Flights
 from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
 from .labels import Labels, make_labels
 from .remainder import TorqueRemainder, fit_torque_remainder, remainder
@@ -197,7 +197,7 @@ def _quiet(msg: str) -> None:
 
 def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: Settings, vehicle_file=None,
         progress=None, on_labels=None) -> Diagnosis:
-    """Diagnose ``flights`` from their segments' ``estimates`` (:func:`qr.estimation.crossfit.diagnosis_estimates`).
+    """Diagnose ``flights`` from their segments' ``estimates`` (:func:`qr.intake.take`).
 
     ``vehicle_file``: how statements about the vehicle file name it (default: the vehicle's name);
     ``progress(msg)``: each step as it starts; ``on_labels(prep)``: called with the full-flight labels

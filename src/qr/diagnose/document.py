@@ -146,3 +146,26 @@ def note_nulls(doc: dict) -> dict:
     if other:
         notes.append(f"null where the number is not finite on this data (not computable): {', '.join(other)}")
     return {**doc, "notes": notes} if notes else doc
+
+
+def vehicle_header(d: Diagnosis) -> str:
+    """``extended_vehicle.yaml``'s header: what the file holds, from the diagnosis."""
+    said = ("the vehicle as given, nothing added: the model does not describe this flight (diagnosis.json: "
+            "described, misfit; what it identifies is in its effects)" if not d.described else
+            "the nominal parameters plus the named effects"
+            + ("; their parameters and J, C_T, C_Q, the delay refined by the rollout's error where the refinement "
+               "may write them (diagnosis.json: refine)" if d.refinement is not None else ""))
+    return f"Extended vehicle from qr diagnose of {', '.join(d.flights.names)}: {said}"
+
+
+def run_metrics(doc: dict) -> dict:
+    """A diagnosis's MLflow metrics from its document: effects named, replay RMSEs, and the rollout block's
+    ``rollout.<model>.<q>_at_<H>`` and ``..._ratio`` (to rate_frozen)."""
+    from ..rollout import horizon_metrics
+
+    ro = doc.get("rollout")
+    return {"effects_named": len(doc["effects"]),
+            "replay.nominal_position_rmse": doc["replay"]["nominal_position_rmse"],
+            "replay.extended_position_rmse": doc["replay"]["extended_position_rmse"],
+            **(horizon_metrics(ro["models"], ro["horizon"], prefix="rollout.", ratios=True)
+               if ro and ro.get("models") else {})}

@@ -1,4 +1,5 @@
-"""The flights of a diagnosis as read: their rows, their airborne gap-free segments, their convention checks.
+"""How a diagnosis takes its flights (:mod:`qr.intake`): its minimum segment length, and its own refusal of a
+flight too short to hold out a test part.
 
 Checked before any estimate is made: a log in another frame or unit (:mod:`qr.conventions`), one that
 never flew, or one too short to hold out a test part is refused in one line with its fix.
@@ -7,49 +8,28 @@ never flew, or one too short to hold out a test part is refused in one line with
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from pathlib import Path
 
-import pandas as pd
-
-from .. import conventions
 from ..errors import QrInputError
-from ..segments import FlightSegments, flight_segments
+from ..intake import IntakeSettings
+from ..segments import FlightSegments
 from .settings import DiagnoseConfig
 
 
-@dataclass(frozen=True)
-class Flights:
-    """The flights of one diagnosis: names as the user gave them, rows, segments, convention checks."""
-
-    names: list[str]
-    measured: list[pd.DataFrame]
-    split: list[FlightSegments]
-    conventions: list[dict]  # per flight: {"flight", "checks": what each check measured}
+def intake_settings(cfg: DiagnoseConfig, filter_cfg: dict) -> IntakeSettings:
+    """A segment is used if it holds ``trim_s`` at each end and one cross-validation block."""
+    return IntakeSettings(2 * cfg.trim_s + cfg.block_s, filter_cfg, tuple(cfg.skip_checks),
+                          "diagnose.skip_checks=[{name}] at the end of the command")
 
 
-def check_flights(names: list[str], measured: list[pd.DataFrame], vehicle, cfg: DiagnoseConfig,
-                  say=lambda msg: None, vehicle_file=None) -> Flights:
-    """The flights, each checked (conventions, airborne segments, length) and its left-out rows said
-    (``vehicle_file``: the file ``vehicle`` was read from, named in a fix)."""
-    # the training part of a lone flight must hold a block per cross-validation fold
-    blocks = cfg.selection.folds if len(names) == 1 else 1
+def length_check(cfg: DiagnoseConfig, flights: int):
+    """``require(path, segments)`` of :func:`qr.intake.take`: refuse a flight whose used segments, less
+    ``trim_s`` at each end, cannot hold the training part (of a lone flight: a block per cross-validation fold)."""
+    blocks = cfg.selection.folds if flights == 1 else 1
     need = (blocks * cfg.block_s + cfg.gap_s / 2) / cfg.train_fraction
-    split, checks = [], []
-    for f, m in zip(names, measured):
-        fs = flight_segments(m, vehicle, 2 * cfg.trim_s + cfg.block_s, f)
-        checks.append({"flight": str(f), "checks": [r.as_dict() for r in conventions.require(
-            m, vehicle, f, cfg.skip_checks, "diagnose.skip_checks=[{name}] at the end of the command",
-            vehicle_file)]})
-        _check_length(f, fs, need, cfg, blocks)
-        split.append(fs)
-    for f, fs in zip(names, split):
-        _say_segments(say, Path(f).name, fs)
-    return Flights(list(names), list(measured), split, checks)
+    return lambda path, fs: _check_length(path, fs, need, cfg, blocks)
 
 
 def _check_length(path, fs: FlightSegments, need: float, cfg: DiagnoseConfig, blocks: int) -> None:
-    """Refuse a flight whose used segments, less ``trim_s`` at each end, cannot hold ``need`` seconds."""
     longest = max(s.window[1] - s.window[0] for s in fs.segments)
     n = len(fs.used)
     lasts = sum(s.window[1] - s.window[0] for s in fs.used)
@@ -64,14 +44,3 @@ def _check_length(path, fs: FlightSegments, need: float, cfg: DiagnoseConfig, bl
         where = "airborne" if not fs.gaps else f"airborne in {n} segment{'s' if n > 1 else ''} between time gaps"
         raise QrInputError(path, f"flight lasts {lasts:.1f} s {where}, too short to hold out a test part "
                                  f"(needs {need + 2 * cfg.trim_s * n:.1f} s)", fix)
-
-
-def _say_segments(say, name: str, fs: FlightSegments) -> None:
-    if fs.ground_s > 0:
-        spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in fs.airborne)
-        say(f"{name}: airborne {spans}; {fs.ground_s:.1f} s on the ground left out")
-    for g0, g1 in fs.gaps:
-        say(f"{name}: no samples from {g0:.2f} to {g1:.2f} s: the parts before and after are separate segments")
-    for seg in fs.segments:
-        if not seg.used:
-            say(f"{name}: segment {seg.window[0]:.2f}-{seg.window[1]:.2f} s not used: {seg.note}")

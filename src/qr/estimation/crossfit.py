@@ -14,9 +14,9 @@ the full-flight filter.
 
 This is the filter stage's product: it writes every segment's three estimates to one cross-fit file
 (:func:`segment_estimates`, :func:`write_segment_estimates`); :class:`Estimates` is the one reader of
-that file (the diagnosis, ``qr evaluate``, ``qr learn residual`` and the learning data set), and
-:func:`diagnosis_estimates` the one place a diagnosis gets its estimates: read where the file has them,
-else filtered by the same recipe (:func:`prepare_flight`).
+that file (the diagnosis, ``qr evaluate``, ``qr learn residual`` and the learning data set); the intake
+(:func:`qr.intake.take`) reads a segment's estimates from it where it has them, else filters them by the
+same recipe (:func:`prepare_flight`).
 """
 
 from __future__ import annotations
@@ -102,19 +102,20 @@ def key(filter_cfg: dict, report: dict, vehicle) -> str:
                       sort_keys=True, default=str)
 
 
-def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None):
+def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None, halves: bool = True):
     """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
 
     ``report``: the filter stage's report of this flight (its tuned noise values are
-    reused instead of tuning again).  Returns ``(states, (even, odd), report)``.
+    reused instead of tuning again).  Returns ``(states, (even, odd), report)``; without ``halves``
+    ``(states, None, report)`` (a rollout's start states need no cross-fitting).
     """
     if report is None:
         report = {"tuning": tuned_noise(flight, vehicle, filter_cfg)}
     matched = matched_settings(filter_cfg, report)
     # the full flight and its two halves: three independent filters, run side by side
-    st, even, odd = thread_map(lambda f: _states(f, vehicle, matched),
-                               (flight, _half(flight, 0), _half(flight, 1)))
-    return st, (even, odd), report
+    st, *pair = thread_map(lambda f: _states(f, vehicle, matched),
+                           (flight, _half(flight, 0), _half(flight, 1)) if halves else (flight,))
+    return st, tuple(pair) if halves else None, report
 
 
 def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) -> dict | None:
@@ -161,35 +162,7 @@ class SegmentEstimate:
     window: tuple[float, float]  # first and last stamp, the log's own time
     rows: pd.DataFrame  # the measured rows the filters read
     states: pd.DataFrame
-    halves: tuple[pd.DataFrame, pd.DataFrame]  # (even, odd)
-
-
-def diagnosis_estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, reports: list | None = None,
-                        stored: list | None = None, say=lambda msg: None) -> list[SegmentEstimate]:
-    """The estimates of every flight's used segments (``segments``: per flight, its
-    :class:`qr.segments.Segment` list), flights in order and each one's segments in time order.
-
-    ``reports`` / ``stored``: per flight, the filter stage's report and cross-fit file; a segment found
-    there with the same settings is read, else filtered (:func:`prepare_flight`, the longest segment
-    first: a tuning filter, ``filter=auto``, is tuned there once per flight).  The same numbers either way.
-    """
-    out = []
-    for i, used in enumerate(segments):
-        report = reports[i] if reports else None
-        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and report else None
-        for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
-            got = file.get(seg.window[0]) if file else None
-            if got:
-                (st, pair), source = got, "read from the filter stage"
-            else:
-                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
-                source = f"filter={filter_cfg.get('name', '?')}"
-            say(f"estimates of {names[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
-                f"{source}")
-            for table in (st, *pair):
-                table.attrs["flight"] = i
-            out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
-    return sorted(out, key=lambda e: (e.flight, e.window[0]))
+    halves: tuple[pd.DataFrame, pd.DataFrame] | None  # (even, odd); None: not asked for (qr.intake)
 
 
 class Estimates:

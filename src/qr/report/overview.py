@@ -101,7 +101,7 @@ def _axes(cell) -> list[float]:
 
 
 def parse_named(named) -> list[tuple[str, dict[str, float]]]:
-    """``"linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); cg_offset(rx=0.001 m)"`` (qr.stages.diagnose.summary:
+    """``"linear_drag(kx=0.0125 N s/m, ky=0.0126 N s/m); cg_offset(rx=0.001 m)"`` (qr.stages.diagnose_sets.summary:
     each value followed by its unit, or bare) -> pairs of names and values."""
     if not isinstance(named, str) or named.strip() in ("", "none", "-"):
         return []

@@ -1,0 +1,144 @@
+"""The one intake of the commands that read canonical flights: flights + vehicle + settings -> the flights
+checked and every used segment's estimates (:class:`Intake`).
+
+Each fact once:
+
+- the convention checks (:mod:`qr.conventions`, :func:`check_conventions`): a log in another frame, order or
+  unit is refused in one line naming the setting that skips the check;
+- the piece cutting (:func:`qr.segments.flight_segments`): airborne, gap-free segments, those shorter than the
+  command's one minimum length (:attr:`IntakeSettings.min_segment_s`) kept but not used;
+- the filter stage's tuning record (its ``.nis.json``, :func:`read_reports`) and cross-fit file: a segment's
+  estimates read where the filter stage made them with the same settings, else filtered by the same recipe
+  (:func:`qr.estimation.crossfit.prepare_flight`, the longest segment first: a tuning filter is tuned there
+  once per flight).  The same numbers either way.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pandas as pd
+
+from .segments import FlightSegments, flight_segments
+
+if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
+    from .estimation.crossfit import SegmentEstimate
+
+
+@dataclass(frozen=True)
+class Flights:
+    """The flights as taken: names as the user gave them, rows, segments, convention checks."""
+
+    names: list[str]
+    measured: list[pd.DataFrame]
+    split: list[FlightSegments]
+    conventions: list[dict]  # per flight: {"flight", "checks": what each check measured}
+
+
+@dataclass(frozen=True)
+class IntakeSettings:
+    """How a command takes its flights."""
+
+    min_segment_s: float  # a shorter airborne, gap-free segment is not used
+    filter: dict  # the filter settings the estimates are made with (resolved)
+    skip_checks: tuple[str, ...] = ()  # convention checks turned off
+    how_to_skip: str = "diagnose.skip_checks=[{name}] at the end of the command"  # said in a refusal
+    halves: bool = True  # the cross-fitting halves too (a diagnosis); False: the full estimate alone (a rollout)
+
+
+@dataclass(frozen=True)
+class Intake:
+    """The flights checked and cut, and every used segment's estimates (flights in order, each one's
+    segments in time order)."""
+
+    flights: Flights
+    estimates: tuple[SegmentEstimate, ...]
+
+
+def read_reports(nis_files: Sequence) -> list[dict]:
+    """The filter stage's reports (``.nis.json``: its tuning record), one per flight."""
+    return [json.loads(Path(p).read_text()) for p in nis_files]
+
+
+def read_flights(paths: Sequence) -> list[pd.DataFrame]:
+    """The canonical flights, each validated (:func:`qr.flight.read_flight`; its unit check, which needs the
+    vehicle's ground rows, comes with the cutting)."""
+    from .flight import read_flight
+
+    return [read_flight(f) for f in paths]
+
+
+def check_conventions(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = IntakeSettings.how_to_skip,
+                      vehicle_file=None) -> list[dict]:
+    """What each convention check measured; a failed check refuses the log (:func:`qr.conventions.require`)."""
+    from . import conventions
+
+    return [r.as_dict() for r in conventions.require(df, vehicle, path, skip, how_to_skip, vehicle_file)]
+
+
+def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: IntakeSettings, vehicle_file=None,
+         reports: list | None = None, stored: list | None = None, say: Callable[[str], None] = lambda msg: None,
+         require: Callable[[str, FlightSegments], None] | None = None,
+         on_checked: Callable[[], None] | None = None) -> Intake:
+    """The flights ``names`` (their rows ``measured``) checked, cut and estimated.
+
+    Per flight, in order: cut (a log that never flew is refused), the convention checks, then ``require(name,
+    segments)`` (a command's own refusal, e.g. too short to hold out a test part).  ``on_checked()``: called once
+    every flight passed, before the estimates (the filters) start.  ``reports`` / ``stored``: per flight, the
+    filter stage's report and cross-fit file (``vehicle_file``: the file ``vehicle`` was read from, named in
+    a fix)."""
+    split, checks = [], []
+    for f, m in zip(names, measured):
+        fs = flight_segments(m, vehicle, settings.min_segment_s, f)
+        checks.append({"flight": str(f), "checks": check_conventions(m, vehicle, f, settings.skip_checks,
+                                                                     settings.how_to_skip, vehicle_file)})
+        if require is not None:
+            require(f, fs)
+        split.append(fs)
+    for f, fs in zip(names, split):
+        _say_segments(say, Path(f).name, fs)
+    if on_checked is not None:
+        on_checked()
+    flights = Flights(list(names), list(measured), split, checks)
+    return Intake(flights, _estimates([fs.used for fs in split], [Path(f).name for f in names], vehicle,
+                                      settings.filter, reports, stored, say, settings.halves))
+
+
+def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, reports: list | None,
+               stored: list | None, say, halves: bool) -> tuple[SegmentEstimate, ...]:
+    """Every flight's used ``segments`` estimated: read from the flight's cross-fit file where it was made with
+    the same settings, else filtered (:func:`prepare_flight`), the longest segment first."""
+    from .estimation.crossfit import Estimates, SegmentEstimate, prepare_flight
+
+    out = []
+    for i, used in enumerate(segments):
+        report = reports[i] if reports else None
+        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and report else None
+        for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
+            got = file.get(seg.window[0]) if file else None
+            if got:
+                (st, pair), source = (got[0], got[1] if halves else None), "read from the filter stage"
+            else:
+                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report, halves)
+                source = f"filter={filter_cfg.get('name', '?')}"
+            say(f"estimates of {names[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
+                f"{source}")
+            for table in (st, *(pair or ())):
+                table.attrs["flight"] = i
+            out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
+    return tuple(sorted(out, key=lambda e: (e.flight, e.window[0])))
+
+
+def _say_segments(say, name: str, fs: FlightSegments) -> None:
+    if fs.ground_s > 0:
+        spans = ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in fs.airborne)
+        say(f"{name}: airborne {spans}; {fs.ground_s:.1f} s on the ground left out")
+    for g0, g1 in fs.gaps:
+        say(f"{name}: no samples from {g0:.2f} to {g1:.2f} s: the parts before and after are separate segments")
+    for seg in fs.segments:
+        if not seg.used:
+            say(f"{name}: segment {seg.window[0]:.2f}-{seg.window[1]:.2f} s not used: {seg.note}")
