@@ -155,6 +155,44 @@ def test_no_stage_imports_another_stage_but_the_listed_ones():
     assert found == set(STAGE_CALLS_STAGE), f"stage imports another stage: {sorted(found - set(STAGE_CALLS_STAGE))}"
 
 
+STAGE_CODE_LINES = 60  # issue 35: a stage reads, calls one library run, writes one atomic folder, tracks
+
+
+def _code_lines(text: str) -> int:
+    """Lines holding code: blank lines, comments and docstrings (module, class, function) not counted."""
+    import io
+    import tokenize
+
+    doc = set()
+    for node in ast.walk(ast.parse(text)):
+        if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)) and node.body:
+            b = node.body[0]
+            if isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant) and isinstance(b.value.value, str):
+                doc.update(range(b.lineno, b.end_lineno + 1))
+    skip = {tokenize.COMMENT, tokenize.NL, tokenize.NEWLINE, tokenize.INDENT, tokenize.DEDENT, tokenize.ENCODING,
+            tokenize.ENDMARKER}
+    lines = set()
+    for t in tokenize.generate_tokens(io.StringIO(text).readline):
+        if t.type not in skip:
+            lines.update(range(t.start[0], t.end[0] + 1))
+    return len(lines - doc)
+
+
+def test_the_code_line_count_leaves_out_docstrings_comments_and_blank_lines():
+    text = ('"""Module.\n\nstill the docstring"""\n\nimport sys  # a comment\n# a comment line\n\n\n'
+            'def f(a,\n      b):\n    """Doc."""\n    s = """not a\n    docstring"""\n    return s\n')
+    assert _code_lines(text) == 6  # import; def (2 lines); s = (2 lines); return
+
+
+@pytest.mark.parametrize("module", sorted(STAGE_MODULES))
+def test_each_stage_module_is_read_run_write_track(module):
+    """A stage module holds no library code: at most STAGE_CODE_LINES lines of code (its workflow glue lives
+    beside it in ``<stage>_sets.py``, the computation in the library it calls)."""
+    path = SRC / "stages" / f"{module.rsplit('.', 1)[1]}.py"
+    n = _code_lines(path.read_text())
+    assert n <= STAGE_CODE_LINES, f"{path.name}: {n} lines of code (at most {STAGE_CODE_LINES})"
+
+
 def test_only_the_stages_track_mlflow_runs():
     importers = {name for name, deps in _imports().items() if "qr.tracking" in deps}
     assert importers and all(n.startswith("qr.stages.") for n in importers), sorted(importers)
