@@ -21,19 +21,38 @@ if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-@pytest.hookimpl(trylast=True)
+def _module_fixtures(item) -> list[str]:
+    """The module- or session-scoped fixtures of ``item`` defined in its own test module (not in a conftest)."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return []
+    own = item.nodeid.split("::")[0]
+    return sorted(name for name in info.names_closure for d in info.name2fixturedefs.get(name, ())[-1:]
+                  if d.scope in ("module", "package", "session") and d.baseid == own)
+
+
+@pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(config, items):
-    """The workflow tests share one reduced run per xdist group; if `--dist loadgroup` stops grouping
-    (pytest 9.2 with xdist 3.8 did), every worker would run it again: refuse rather than pay twice."""
+    """Under `--dist loadgroup`: the xdist groups, and the order in which xdist hands out the tests."""
     if not getattr(config.option, "loadgroup", False):  # set on each worker under --dist loadgroup
-        return
+        return (yield)
+    # Before xdist's own hook names the groups: a module's tests that share a module-scoped fixture (a flight
+    # flown and diagnosed, a refinement) run on one worker, so that the fixture is computed once instead of once
+    # per worker that runs one of them (xdist otherwise hands the tests out one by one).
+    for item in items:
+        if not item.get_closest_marker("xdist_group") and _module_fixtures(item):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+    result = yield
     # The longest first (xdist hands out the groups, largest first, then single tests in this order): the tests
     # marked slow start at once, so that the two workers end together instead of one finishing them alone.
     items.sort(key=lambda i: i.get_closest_marker("slow") is None)
+    # The workflow tests share one reduced run per xdist group; if `--dist loadgroup` stops grouping (pytest 9.2
+    # with xdist 3.8 did), every worker would run it again: refuse rather than pay twice.
     ungrouped = [i.nodeid for i in items if i.get_closest_marker("xdist_group") and "@" not in i.nodeid]
     if ungrouped:
         raise pytest.UsageError(f"--dist loadgroup did not group {ungrouped[0]} (pytest/pytest-xdist "
                                 "versions); install from environment.lock")
+    return result
 
 
 @pytest.fixture(autouse=True)

@@ -30,6 +30,7 @@ def _status(path, job):
                           capture_output=True, text=True, check=True).stdout.strip()
 
 
+@pytest.mark.slow  # a minute of Snakemake and cluster stand-ins: started first under xdist (conftest), not last
 def test_cluster_jobs_submit_cancel_and_resume(tmp_path):
     """A small target (results/simulation/stability.csv: one job, MLflow runs open all along) through
     profiles/local-cluster: Ctrl-C while its run is open cancels the job (the cancel command), the

@@ -37,6 +37,7 @@ def dataset(tmp_path):
     return path
 
 
+@pytest.mark.slow  # a Snakemake run beside two sweeps (~1 min): started first under xdist (conftest), not last
 def test_two_sweeps_and_the_workflow_share_one_store(tmp_path, dataset):
     path = wr.workdir(tmp_path / "wf")
     results = path / "results"
