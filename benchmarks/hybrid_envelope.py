@@ -3,8 +3,8 @@
     .venv/bin/python benchmarks/hybrid_envelope.py results/generalization/payload/trajectory-sideways [RESIDUAL_DIR]
 
 Reads a fold of rule generalization_fold (its training diagnosis's physical vehicle, its residual, the filter
-stage's files of its flights) and prints, at h = H, the MAE ratio to rate_frozen (torch rollout, windows
-pooled) of p, v, R, ω on the fold's validation flights (the training side's) and on its scored flights, split
+stage's files of its flights) and prints, at h = H, the MAE ratio to rate_frozen (the nominal vehicle, ω held;
+torch rollout, windows pooled: close to, not the same as, qr evaluate's per-flight table) of p, v, R, ω on the fold's validation flights (the training side's) and on its scored flights, split
 into windows whose start state lies inside / outside the network inputs' training range, for:
 the physical model; the hybrid; the hybrid with its torque dropped; the hybrid with each network input clamped
 to its training range.  A diagnosis of the hypothesis "the network's torque extrapolates", not a score.
@@ -54,6 +54,9 @@ hyb = load_vehicle(res_dir / "hybrid_vehicle.yaml")
 net = ResidualNet.from_residual(hyb.residual)
 P = torch.as_tensor(true_params(phys, phys.effects, residual=False), dtype=DTYPE)
 P0 = P.numpy()
+# qr evaluate's rate_frozen: the nominal vehicle (the set's diagnosis input), no effects, ω held
+Pn0 = true_params(load_vehicle(results / "diagnosis" / set_name / "vehicle.yaml"), residual=False)
+Pn = torch.as_tensor(Pn0, dtype=DTYPE)
 
 
 def batch(names, stride=1):
@@ -114,7 +117,8 @@ for label, names in (("validation (training side)", val_f), ("scored (held out)"
     Xs = b.X0.numpy()
     inside = np.all((phi_of(Xs, b.U[:, 0].numpy()) >= lo) & (phi_of(Xs, b.U[:, 0].numpy()) <= hi), axis=1)
     with torch.no_grad():
-        ref = window_errors(rollout(b.X0, b.U, b.dt, P, None, frozen=True), *b.truth)
+        bn = rf.gather(pcs, "train", H, Pn0)
+        ref = window_errors(rollout(bn.X0, bn.U, bn.dt, Pn, None, frozen=True), *bn.truth)
         print(f"\n{label}: {len(b)} windows, {100 * (1 - inside.mean()):.0f} % start outside the inputs' "
               f"training range")
         for name, m in models.items():

@@ -61,6 +61,7 @@ def at(block, q):
 
 
 m = ev["models"]
+names = dict(zip(m, ["hold", "rate_frozen", "nominal", "hybrid"])) if len(m) == 4 else {k: k for k in m}
 print(f"held out ({(ev.get('envelope') or {}).get('share_outside', float('nan')):.0%} of windows outside the envelope): "
-      + "; ".join(f"{k} " + " / ".join(f"{at(m[k], q) / at(m['rate_frozen'], q):.2f}" for q in ("p", "v", "R", "w"))
+      + "; ".join(f"{names[k]} " + " / ".join(f"{at(m[k], q) / at(m['rate_frozen'], q):.2f}" for q in ("p", "v", "R", "w"))
                   for k in m if k not in ("hold", "rate_frozen")))
