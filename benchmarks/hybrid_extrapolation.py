@@ -7,7 +7,7 @@ The truth (a Hummingbird) carries a torque the nominal vehicle lacks, growing wi
 TRUE plant's torque remainder: ``damp`` a rate damping tau = -C omega on roll and pitch (C from the environment,
 N m s, default 0.01), ``flap`` a torque 0.004 N m per m/s of body velocity.  ``qr synth`` flies two slow 30 s
 flights (v_max 0.7 m/s, tilt 8 deg; they train, the second validates) and a fast 20 s one (2 m/s, 25 deg; scored)
-into DIR (made once, reused), ``qr learn residual`` trains (H = 20, the given overrides) into DIR/res_<overrides>
+into DIR (made once, reused), ``qr learn residual`` trains (H = 20, or the environment's H; the given overrides) into DIR/res_<overrides>
 (reused if there), and the compiled rollout scores the fast flight's windows inside / outside the training
 envelope (qr.envelope): MAE ratio to rate_frozen at h = H of p, v, R, omega for the nominal vehicle, the hybrid
 and the truth (docs/learn.md, "Beyond the training envelope").
@@ -27,7 +27,7 @@ from qr.vehicle import load_vehicle, save_vehicle
 tmp = Path(sys.argv[1])
 mech = sys.argv[2] if len(sys.argv) > 2 else "damp"
 extra = sys.argv[3:]
-H = 20
+H = int(os.environ.get("H", "20"))  # the horizon of training and scoring
 veh = Path(__file__).resolve().parent.parent / "conf" / "vehicle" / "asctec_hummingbird.yaml"
 tmp.mkdir(exist_ok=True)
 if not (tmp / "fast").exists():
