@@ -25,8 +25,9 @@ from qr.frames import quat_to_rot
 from qr.residual import features
 from qr.rollout import EvaluateConfig, windows
 from qr.rollout_torch import DTYPE, ResidualNet, body_features, rollout, window_errors
+from qr.plant_state import X_QUAT, X_RATE, X_VEL
 from qr.sim.plant import true_params
-from qr.stages.evaluate import estimated_pieces
+from qr.pieces import estimated_pieces
 from qr.stages.learn_residual import compose
 from qr.vehicle import load_vehicle, vehicle_from_dict
 
@@ -74,9 +75,9 @@ def batch(names, stride=1):
 
 
 def phi_of(X, U):
-    R = quat_to_rot(X[:, 6:10] / np.linalg.norm(X[:, 6:10], axis=1, keepdims=True))
-    v_b = np.einsum("nji,nj->ni", R, X[:, 3:6])
-    return features(net.inputs, v_b, X[:, 10:13], -R[:, 2, :], U, net.rotor_speed_scale)
+    R = quat_to_rot(X[:, X_QUAT] / np.linalg.norm(X[:, X_QUAT], axis=1, keepdims=True))
+    v_b = np.einsum("nji,nj->ni", R, X[:, X_VEL])
+    return features(net.inputs, v_b, X[:, X_RATE], -R[:, 2, :], U, net.rotor_speed_scale)
 
 
 class Clamped(torch.nn.Module):

@@ -54,7 +54,7 @@ from qr.flight import read_flight
 from qr.rollout import EvaluateConfig, windows, score_plant, summary, pool, at, MODEL, RATE_FROZEN
 from qr.envelope import Envelope
 from qr.sim.plant import true_params
-from qr.stages.evaluate import estimated_pieces
+from qr.pieces import estimated_pieces
 from qr.stages.learn_residual import compose
 
 plain = to_dict(compose([f"learn.horizon={H}", f"evaluate.horizon={H}"]))

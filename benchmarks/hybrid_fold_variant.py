@@ -17,9 +17,8 @@ from pathlib import Path
 import yaml
 
 from qr.holdout import folds
-from qr.stages.evaluate import evaluate_learned
-from qr.stages.generalize import RESIDUAL_LABEL
-from qr.stages.learn_residual import train_held_out
+from qr.stages.evaluate_sets import RESIDUAL_LABEL, evaluate_learned
+from qr.stages.learn_residual_sets import train_held_out
 
 set_name, fold_name, out = sys.argv[1], sys.argv[2], Path(sys.argv[3])
 extra = sys.argv[4:]
