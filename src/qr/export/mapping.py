@@ -13,6 +13,7 @@ the export does instead); :func:`qr.export.document.mapping_md` writes them as `
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -103,6 +104,12 @@ def plant_of(vehicle) -> Plant:
                  cg=P[ps.P_CG].copy(), tau_m=float(P[ps.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
                  P=P, unit=f, hub_z=vehicle.hub_z)
+
+
+def file_stem(vehicle) -> str:
+    """A Python module name from the vehicle's name (``crazyflie21-brushless`` → ``crazyflie21_brushless``)."""
+    stem = re.sub(r"\W", "_", vehicle.name).strip("_") or "vehicle"
+    return stem if not stem[0].isdigit() else f"v_{stem}"
 
 
 def g(x: float) -> str:

@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import plant_state as ps
 from . import mapping as mp
-from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, g
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, file_stem, g
 
 ROTOR_MASS_FRACTION = 0.0025  # of the vehicle's mass, per rotor link (Gazebo needs a mass on every link)
 SLOWDOWN = 10  # rotorVelocitySlowdownSim, as the x500 (the joint turns 10x slower than the real rotor)
@@ -270,12 +270,6 @@ def files(vehicle, pp: mp.Plant, path: str, version: str) -> list[File]:
     return [File(f"{model}/model.sdf", model_sdf(vehicle, pp, path, version, model)),
             File(f"{model}/model.config", model_config(vehicle, model, version)),
             File(f"{model}.params", params_text(vehicle, pp, path, version))]
-
-
-def file_stem(vehicle) -> str:
-    from .rotorpy import file_stem as stem
-
-    return stem(vehicle)
 
 
 INTRO = ["The model folder goes on GZ_SIM_RESOURCE_PATH (PX4: Tools/simulation/gz/models/); the .params file "

@@ -44,7 +44,7 @@ import numpy as np
 from .. import plant_state as ps
 from ..sim import plant as pl
 from . import learned, mapping as mp
-from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, g
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, file_stem, g
 
 # RotorPy's low-level gains (for its cmd_ctbr / cmd_vel / cmd_acc / cmd_ctatt abstractions): its own
 # defaults (Multirotor.__init__), scaled to this vehicle's inertia by the controller's own use of J
@@ -384,14 +384,6 @@ def files(vehicle, pp: mp.Plant, path: str, version: str) -> list[File]:
     module = file_stem(vehicle) + "_params"
     return [File(f"{module}.py", module_text(vehicle, pp, path, version, module)),
             *learned.weights(vehicle, file_stem(vehicle))]
-
-
-def file_stem(vehicle) -> str:
-    """A Python module name from the vehicle's name (``crazyflie21-brushless`` → ``crazyflie21_brushless``)."""
-    import re
-
-    stem = re.sub(r"\W", "_", vehicle.name).strip("_") or "vehicle"
-    return stem if not stem[0].isdigit() else f"v_{stem}"
 
 
 INTRO = ["`QrMultirotor` (the module's subclass of RotorPy's `Multirotor`, `exact_aero=True` by default) switches "
