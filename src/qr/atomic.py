@@ -219,6 +219,12 @@ def write_text(dest: str | Path, text: str) -> None:
         tmp.write_text(text)
 
 
+def write_file(dest: str | Path, data: str | bytes) -> None:
+    """Text (as :func:`write_text`) or bytes; the folders up to it made."""
+    with atomic_path(dest) as tmp:
+        tmp.write_text(data) if isinstance(data, str) else tmp.write_bytes(data)
+
+
 def plain(x):
     """``x`` with numpy arrays and scalars as Python lists and numbers (for JSON and YAML writers)."""
     import numpy as np

@@ -32,6 +32,7 @@ NumPy ``.npz`` beside it (``model``, relative to the YAML): arrays ``W0, b0, W1,
 
 from __future__ import annotations
 
+import io
 import math
 import os
 from dataclasses import dataclass
@@ -153,13 +154,20 @@ def recorded_size(raw_block) -> dict | None:
     return size if ok else None
 
 
-def save_weights(res: Residual, path) -> None:
-    """The ``.npz`` (written by the caller's atomic folder or path)."""
+def weights_bytes(res: Residual) -> bytes:
+    """The ``.npz`` of the weights (``W0, b0, …``), in memory."""
     arrays = {}
     for k, (W, b) in enumerate(zip(res.weights, res.biases)):
         arrays[f"W{k}"], arrays[f"b{k}"] = np.asarray(W, float), np.asarray(b, float)
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def save_weights(res: Residual, path) -> None:
+    """The ``.npz`` (written by the caller's atomic folder or path)."""
     with open(path, "wb") as f:
-        np.savez(f, **arrays)
+        f.write(weights_bytes(res))
 
 
 def absolute(raw_block, base_dir: Path):

@@ -210,6 +210,7 @@ UNATOMIC_WRITES = {
     ("qr.models.linear", "_save_weights"): "the same",
     ("qr.models.gpr", "_save_weights"): "the same",
     ("qr.residual", "save_weights"): "into the temporary folder or path of its callers' atomic_dir / atomic_path",
+    ("qr.residual", "weights_bytes"): "into memory (an io.BytesIO): no file",
     ("qr.report.background", "collect"): "moves a figure drawn in a private temporary folder into the caller's "
                                          "atomic_dir (the diagnosis's figures folder)",
     ("qr.tracking", "_store_lock"): "the MLflow store's lock file (flock): no output, never read",

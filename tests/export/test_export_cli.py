@@ -111,3 +111,31 @@ def test_never_replaces_a_file_it_did_not_write(tmp_path, capsys):
     new = tmp_path / "sims"
     for to in ("mujoco", "rotorpy", "mujoco"):
         assert run_cli(["export", VEHICLES / "crazyflie21_brushless.yaml", "--to", to, "--out", new], capsys)[0] == 0
+
+
+@pytest.mark.parametrize("to", sorted(WRITES))
+def test_the_library_builds_every_file_in_memory_and_the_stage_writes_exactly_them(to, tmp_path):
+    """``qr.export.run`` writes nothing and returns a frozen Export; ``qr export`` writes its files (a hybrid's
+    network weights among them) and mapping.md of it, byte for byte, and nothing else."""
+    import dataclasses
+
+    import simulators as S
+    from qr import __version__
+    from qr.export import run
+    from qr.export.document import files
+    from qr.stages.export import run_export
+
+    path = S.hybrid_file(load_vehicle(EXTENDED), tmp_path / "hybrid", remainder=2e-6)
+    before = sorted(tmp_path.rglob("*"))
+    result = run(load_vehicle(path), path, to, __version__)
+    assert sorted(tmp_path.rglob("*")) == before  # nothing written
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        result.files = ()
+    out = tmp_path / "out"
+    written = run_export(path, to, out)
+    assert written == [out / n.rstrip("/") for n in [*result.entries, "mapping.md"]]
+    on_disk = {p.relative_to(out).as_posix(): p.read_bytes() for p in out.rglob("*")
+               if p.is_file() and p.name != ".qr-output.json"}
+    expected = {f.name: f.data.encode() if isinstance(f.data, str) else f.data for f in files(result)}
+    assert on_disk == expected
+    assert ("crazyflie21_brushless_residual.npz" in expected) == (to != "px4-gz")  # the network beside its module

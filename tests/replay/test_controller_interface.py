@@ -120,3 +120,17 @@ def test_a_model_whose_delay_is_shorter_than_the_step_flies_with_a_finer_step(cr
     assert a.t[1] - a.t[0] == pytest.approx(0.0004) and b.t[1] - b.t[0] == pytest.approx(0.001)
     on_b = np.stack([np.interp(b.t, a.t, a.p[:, i]) for i in range(3)], axis=1)
     assert np.max(np.abs(on_b - b.p)) < 1e-3
+
+
+def test_replay_json_records_each_controllers_description_as_given(crazyflie):
+    """The Replay's typed record of a controller (name, rate, gains) gives back the description it was made of:
+    the Lee controller's (its gains, the mass it was told) and a user's without gains."""
+    from qr.replay.controller import ControllerRecord
+    from qr.replay.lee import LeeController
+
+    lee = LeeController()
+    lee.reset(crazyflie, 0.041)
+    for described in (lee.describe(), PythonLee().describe()):
+        record = ControllerRecord.of(described)
+        assert record.to_dict() == described and hash(record)
+    assert ControllerRecord.of(lee.describe()).gains[0] == ("mass", 0.041)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import mapping as mp
+from .mapping import File
 
 
 class Exact(list):
@@ -42,14 +43,13 @@ def residual_spec(vehicle, pp: mp.Plant, stem: str) -> dict | None:
             "input_scale": Exact(net.input_scale), "output_scale": Exact(net.output_scale)}
 
 
-def write_weights(tmp, vehicle, stem: str) -> list[str]:
-    """The network's ``.npz`` into the export folder ``tmp`` (nothing without one); the names written."""
-    from ..residual import save_weights
+def weights(vehicle, stem: str) -> list[File]:
+    """The network's ``.npz`` beside the exported module (nothing without one)."""
+    from ..residual import weights_bytes
 
     if vehicle.residual is None:
         return []
-    save_weights(vehicle.residual, tmp / residual_file(stem))
-    return [residual_file(stem)]
+    return [File(residual_file(stem), weights_bytes(vehicle.residual))]
 
 
 def literal(x, number) -> str:

@@ -1,18 +1,19 @@
-"""The mapping table: every vehicle parameter and named effect, per simulator, and ``mapping.md``.
+"""The mapping table: every vehicle parameter and named effect, per simulator (the rows of ``mapping.md``).
 
 One place for the unit conversions (qr's rotor-speed unit → rad/s) and for the vehicle the
 simulators receive: the TRUE plant's parameter vector (:func:`qr.sim.plant.true_params`), so an
 export carries exactly the physics ``qr synth``, the replay and the rollout integrate.  Each
 simulator module (:mod:`qr.export.rotorpy`, :mod:`qr.export.px4_gz`, :mod:`qr.export.mujoco`)
-turns that vector into its files and a list of :class:`Row`, one for every key and named effect of
+turns that vector into its files (:class:`File`, in memory) and a list of :class:`Row`, one for every key and named effect of
 the vehicle file (the simulator's key, the value in its units, the formula that gives it from the
 file's numbers, exact / approximate with the condition / impossible with the term's size and what
-the export does instead); :func:`render` writes them as ``mapping.md``.
+the export does instead); :func:`qr.export.document.mapping_md` writes them as ``mapping.md``.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,6 +43,15 @@ class Row:
     status: str  # EXACT, APPROXIMATE or IMPOSSIBLE
     note: str  # the conversion, the condition of an approximation, or the size and what is done instead
     formula: str = ""  # ``value`` from the vehicle file's numbers (the grammar: docs/export.md, "Formulas")
+
+
+@dataclass(frozen=True)
+class File:
+    """One file of an export, built in memory: its name relative to the output folder (``<name>/model.sdf``
+    inside the folder ``<name>``) and its text or bytes."""
+
+    name: str
+    data: str | bytes
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,12 @@ def plant_of(vehicle) -> Plant:
                  cg=P[ps.P_CG].copy(), tau_m=float(P[ps.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
                  P=P, unit=f, hub_z=vehicle.hub_z)
+
+
+def file_stem(vehicle) -> str:
+    """A Python module name from the vehicle's name (``crazyflie21-brushless`` → ``crazyflie21_brushless``)."""
+    stem = re.sub(r"\W", "_", vehicle.name).strip("_") or "vehicle"
+    return stem if not stem[0].isdigit() else f"v_{stem}"
 
 
 def g(x: float) -> str:
@@ -260,21 +276,6 @@ def untied_moment(P) -> str:
     if not P[ps.P_RDRAG]:
         return "the moment is absent (rotor_drag not named)"
     return f"its moment has rotor_drag's k ({g(P[ps.P_RDRAG])}), not rotor_drag_moment's ({g(P[ps.P_RDM])})"
-
-
-def render(target: str, vehicle_path: str, vehicle, rows: list[Row], intro: list[str], version: str,
-           pp: Plant | None = None) -> str:
-    """``mapping.md``: what each number of the vehicle became in the simulator's files."""
-    counts = {s: sum(r.status == s for r in rows) for s in (EXACT, APPROXIMATE, IMPOSSIBLE)}
-    lines = [f"# {vehicle.name} for {target}: the mapping", "",
-             f"Written by `qr export {vehicle_path} --to {target}` (qr {version}). {len(rows)} items: "
-             f"{counts[EXACT]} exact, {counts[APPROXIMATE]} approximate, {counts[IMPOSSIBLE]} impossible.", "",
-             *intro, "", *([symbols(vehicle, pp), ""] if pp is not None else []),
-             "| qr item | qr value | simulator key | simulator value | formula | mapping | conversion, condition or size |",
-             "|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(f"| {r.item} | {r.qr_value} | {r.key} | {r.value} | {r.formula or '-'} | {r.status} | {r.note} |")
-    return "\n".join(lines) + "\n"
 
 
 def _rotor_property_rows(vehicle, pp: Plant) -> list[Row]:

@@ -27,7 +27,7 @@ import numpy as np
 from ..frames import G
 from .. import plant_state as ps
 from . import learned, mapping as mp
-from .mapping import EXACT, IMPOSSIBLE, Row, g
+from .mapping import EXACT, IMPOSSIBLE, File, Row, file_stem, g
 
 TIMESTEP = 0.001  # s; MuJoCo's RK4 (the rigid body is smooth: 4th order, like qr's plant)
 
@@ -69,8 +69,6 @@ def has_learned(vehicle, pp: mp.Plant) -> bool:
 
 
 def wrench_module(vehicle) -> str:
-    from .rotorpy import file_stem
-
     return f"{file_stem(vehicle)}_learned_wrench"
 
 
@@ -173,16 +171,12 @@ def installed(model):
 def wrench_terms(vehicle, pp: mp.Plant) -> dict:
     P = pp.P
     rem = P[ps.P_REM].reshape(3, 11) if P[ps.P_REM_ON] else None
-    from .rotorpy import file_stem
-
     return {"torque_remainder": None if rem is None else [list(r) for r in rem],  # N m per feature
             "remainder_hover_speed": learned.Exact([P[ps.P_UHOVER] * pp.unit]),  # rad/s
             "residual": learned.residual_spec(vehicle, pp, file_stem(vehicle))}
 
 
 def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
-    from .rotorpy import file_stem
-
     what = " and ".join(w for w, on in (("the learned torque remainder", pp.P[ps.P_REM_ON]),
                                         ("the learned wrench (the network of qr learn residual)",
                                          vehicle.residual is not None)) if on)
@@ -198,8 +192,6 @@ def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
-    from .rotorpy import file_stem
-
     rx, ry = mp.fx_cg(vehicle)
     out = mp.common_rows(vehicle, pp, {
         "name": ("mujoco@model, body@name", vehicle.name, ""),
@@ -268,28 +260,13 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     return out
 
 
-def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
-    from ..atomic import write_text
-
-    from .rotorpy import file_stem
-
-    names = outputs(vehicle, pp)
-    write_text(tmp / names[0], mjcf(vehicle, pp, path, version))
+def files(vehicle, pp: mp.Plant, path: str, version: str) -> list[File]:
+    """``<name>.xml`` and, for a vehicle with learned terms, the module that applies them and the network's weights."""
+    out = [File(f"{file_stem(vehicle)}.xml", mjcf(vehicle, pp, path, version))]
     if has_learned(vehicle, pp):
-        write_text(tmp / f"{wrench_module(vehicle)}.py", wrench_text(vehicle, pp, path, version))
-        learned.write_weights(tmp, vehicle, file_stem(vehicle))
-    return names
-
-
-def outputs(vehicle, pp: mp.Plant | None = None) -> list[str]:
-    """The files :func:`write` writes (the output folder is checked against them first)."""
-    from .rotorpy import file_stem
-
-    pp = mp.plant_of(vehicle) if pp is None else pp
-    extra = [f"{wrench_module(vehicle)}.py"] if has_learned(vehicle, pp) else []
-    if vehicle.residual is not None:
-        extra.append(learned.residual_file(file_stem(vehicle)))
-    return [f"{file_stem(vehicle)}.xml", *extra]
+        out += [File(f"{wrench_module(vehicle)}.py", wrench_text(vehicle, pp, path, version)),
+                *learned.weights(vehicle, file_stem(vehicle))]
+    return out
 
 
 INTRO = ["The MJCF holds the rigid body and the rotor map (thesis eqs. 4.1, 4.3): ctrl_i = ω_i² in (rad/s)² for "

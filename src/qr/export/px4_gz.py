@@ -28,7 +28,7 @@ import numpy as np
 
 from .. import plant_state as ps
 from . import mapping as mp
-from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, file_stem, g
 
 ROTOR_MASS_FRACTION = 0.0025  # of the vehicle's mass, per rotor link (Gazebo needs a mass on every link)
 SLOWDOWN = 10  # rotorVelocitySlowdownSim, as the x500 (the joint turns 10x slower than the real rotor)
@@ -264,27 +264,12 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     return out
 
 
-def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
-    from ..atomic import write_text
-
+def files(vehicle, pp: mp.Plant, path: str, version: str) -> list[File]:
+    """The model folder ``<name>/`` (model.sdf, model.config) and the PX4 parameters ``<name>.params``."""
     model = file_stem(vehicle)
-    (tmp / model).mkdir()
-    write_text(tmp / model / "model.sdf", model_sdf(vehicle, pp, path, version, model))
-    write_text(tmp / model / "model.config", model_config(vehicle, model, version))
-    write_text(tmp / f"{model}.params", params_text(vehicle, pp, path, version))
-    return [f"{model}/", f"{model}.params"]
-
-
-def file_stem(vehicle) -> str:
-    from .rotorpy import file_stem as stem
-
-    return stem(vehicle)
-
-
-def outputs(vehicle) -> list[str]:
-    """The files :func:`write` writes (the output folder is checked against them first)."""
-    model = file_stem(vehicle)
-    return [f"{model}/", f"{model}.params"]
+    return [File(f"{model}/model.sdf", model_sdf(vehicle, pp, path, version, model)),
+            File(f"{model}/model.config", model_config(vehicle, model, version)),
+            File(f"{model}.params", params_text(vehicle, pp, path, version))]
 
 
 INTRO = ["The model folder goes on GZ_SIM_RESOURCE_PATH (PX4: Tools/simulation/gz/models/); the .params file "

@@ -44,7 +44,7 @@ import numpy as np
 from .. import plant_state as ps
 from ..sim import plant as pl
 from . import learned, mapping as mp
-from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, Row, g
+from .mapping import APPROXIMATE, EXACT, IMPOSSIBLE, File, Row, file_stem, g
 
 # RotorPy's low-level gains (for its cmd_ctbr / cmd_vel / cmd_acc / cmd_ctatt abstractions): its own
 # defaults (Multirotor.__init__), scaled to this vehicle's inertia by the controller's own use of J
@@ -379,27 +379,11 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     return out
 
 
-def write(tmp, vehicle, pp, path: str, version: str) -> list[str]:
-    """Write ``<name>_params.py`` (and the learned wrench's weights) into ``tmp``; return the names written."""
-    from ..atomic import write_text
-
+def files(vehicle, pp: mp.Plant, path: str, version: str) -> list[File]:
+    """``<name>_params.py`` and, for a hybrid, the learned wrench's weights beside it."""
     module = file_stem(vehicle) + "_params"
-    write_text(tmp / f"{module}.py", module_text(vehicle, pp, path, version, module))
-    return [f"{module}.py", *learned.write_weights(tmp, vehicle, file_stem(vehicle))]
-
-
-def outputs(vehicle) -> list[str]:
-    """The files :func:`write` writes, before writing them (the output folder is checked against them)."""
-    stem = file_stem(vehicle)
-    return [f"{stem}_params.py", *([residual_file(vehicle)] if vehicle.residual is not None else [])]
-
-
-def file_stem(vehicle) -> str:
-    """A Python module name from the vehicle's name (``crazyflie21-brushless`` → ``crazyflie21_brushless``)."""
-    import re
-
-    stem = re.sub(r"\W", "_", vehicle.name).strip("_") or "vehicle"
-    return stem if not stem[0].isdigit() else f"v_{stem}"
+    return [File(f"{module}.py", module_text(vehicle, pp, path, version, module)),
+            *learned.weights(vehicle, file_stem(vehicle))]
 
 
 INTRO = ["`QrMultirotor` (the module's subclass of RotorPy's `Multirotor`, `exact_aero=True` by default) switches "

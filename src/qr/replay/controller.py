@@ -68,6 +68,31 @@ class Command:
             raise ValueError("a Command holds thrust and torque, or rotor_speeds")
 
 
+Gain = float | tuple[float, ...] | None
+
+
+@dataclass(frozen=True)
+class ControllerRecord:
+    """The controller flown as it describes itself (:meth:`Controller.describe`): replay.json's ``controller``."""
+
+    name: str
+    rate_hz: float
+    gains: tuple[tuple[str, Gain], ...] | None = None  # (name, number or numbers) in its order; None: none given
+
+    @classmethod
+    def of(cls, description: dict) -> ControllerRecord:
+        """The record of a description (its ``name``, ``rate_hz`` and ``gains``: the keys replay.json records)."""
+        gains = description.get("gains")
+        return cls(description["name"], description["rate_hz"], None if gains is None else
+                   tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in gains.items()))
+
+    def to_dict(self) -> dict:
+        d = {"name": self.name, "rate_hz": self.rate_hz}
+        if self.gains is not None:
+            d["gains"] = {k: list(v) if isinstance(v, tuple) else v for k, v in self.gains}
+        return d
+
+
 class Controller:
     """Base class of the replay's controllers (see the module's documentation)."""
 
@@ -82,5 +107,6 @@ class Controller:
         raise NotImplementedError
 
     def describe(self) -> dict:
-        """What ``replay.json`` records of it (name, rate, gains)."""
+        """What ``replay.json`` records of it: ``name``, ``rate_hz`` and, if it has them, ``gains`` (each a number
+        or a list of numbers; :class:`ControllerRecord`)."""
         return {"name": self.name, "rate_hz": float(self.rate_hz)}

@@ -33,7 +33,7 @@ def document(replay, config: dict | None = None) -> dict:
         "flights": [f.path for f in replay.flights],
         "vehicles": list(replay.vehicles),
         "labels": labels,
-        "controller": replay.controller,
+        "controller": replay.controller.to_dict(),
         "mixer": mixer,
         "config": config or {"replay": replay.settings.to_dict()},
         "setpoints": {f.path: setpoints_block(f) for f in replay.flights},
@@ -41,7 +41,6 @@ def document(replay, config: dict | None = None) -> dict:
                                 "models": {m.vehicle: m.errors.summary(replay.rotor_unit, f.setup.thrust_kind)
                                            for m in f.models}}
                        for f in replay.flights},
-        "models": {v: replay.pooled[lab].summary(replay.rotor_unit, thrust_kind)
-                   for v, lab in zip(replay.vehicles, replay.labels)},
+        "models": {v: e.summary(replay.rotor_unit, thrust_kind) for v, e in zip(replay.vehicles, replay.pooled)},
         "unknown": list(replay.unknown),
     }

@@ -13,7 +13,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +21,7 @@ from ..errors import QrInputError
 from ..flight import POSITION, QUATERNION, ROTORS
 from .alignment import Alignment, from_position, from_thrust
 from .compare import Errors, compare, pool
-from .controller import Controller
+from .controller import Controller, ControllerRecord
 from .fly import Actuation, fly, initial_state
 from .logs import COMMANDS, ReplayLog
 from .mixer import MotorMap, fit_motor_map
@@ -42,8 +42,8 @@ class Setup:
     actuation: Actuation
     controller_mass: float
     mass_source: str
-    window: tuple  # (t0, t1) s, log clock
-    initial: tuple  # tracked-point p, v, q, w, u at t0
+    window: tuple[float, float]  # (t0, t1) s, log clock
+    initial: tuple[np.ndarray, ...]  # tracked-point p, v, q, w, u at t0
     thrust_kind: str  # "command" | "rotor"
     sim_rate_hz: float  # the integration rate (a qr synth flight's own)
 
@@ -68,19 +68,19 @@ class FlightReplay:
     setup: Setup
     t: np.ndarray  # the pose stamps inside the window
     logged: dict  # p, q, u, thrust at t
-    models: tuple  # ModelFlight per vehicle
+    models: tuple[ModelFlight, ...]  # one per vehicle
 
 
 @dataclass(frozen=True)
 class Replay:
-    flights: tuple
-    vehicles: tuple  # paths (or names) as given
-    labels: tuple
-    controller: dict  # the controller as it describes itself (name, rate, gains)
+    flights: tuple[FlightReplay, ...]
+    vehicles: tuple[str, ...]  # paths (or names) as given
+    labels: tuple[str, ...]
+    controller: ControllerRecord  # the controller as it describes itself (name, rate, gains)
     settings: ReplaySettings
     rotor_unit: str
-    pooled: dict  # label -> Errors over all flights
-    unknown: tuple = field(default_factory=tuple)  # what the replay does not model, one sentence each
+    pooled: tuple[Errors, ...]  # per vehicle (in labels' order): its errors over all flights
+    unknown: tuple[str, ...] = ()  # what the replay does not model, one sentence each
 
 
 def run(logs: list[ReplayLog], vehicles: list, vehicle_files: list[str], labels: list[str], controllers,
@@ -94,8 +94,8 @@ def run(logs: list[ReplayLog], vehicles: list, vehicle_files: list[str], labels:
         say(f"{log.name}: {setup.alignment.source} setpoints, start {setup.alignment.offset_s:.3f} s, "
             f"controller mass {setup.controller_mass:.4g} kg, {setup.mixer} mixer")
         flights.append(fly_all(log, setup, vehicles, vehicle_files, labels, controller, settings, say))
-    pooled = {lab: pool([f.models[i].errors for f in flights]) for i, lab in enumerate(labels)}
-    return Replay(tuple(flights), tuple(vehicle_files), tuple(labels), controller.describe(), settings,
+    pooled = tuple(pool([f.models[i].errors for f in flights]) for i in range(len(labels)))
+    return Replay(tuple(flights), tuple(vehicle_files), tuple(labels), ControllerRecord.of(controller.describe()), settings,
                   vehicles[0].rotor_speed_unit, pooled, tuple(unknowns(flights, vehicles, settings)))
 
 

@@ -156,7 +156,7 @@ def figures(replay, folder: Path) -> dict:
     (folder / "figures").mkdir(exist_ok=True)
     for i, f in enumerate(replay.flights):
         rel = figure_name(f.path, i)
-        flight_figure(f, replay.controller["name"], replay.rotor_unit, folder / rel)
+        flight_figure(f, replay.controller.name, replay.rotor_unit, folder / rel)
         out[f.path] = rel
     return out
 
