@@ -117,7 +117,7 @@ def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, repo
     out = []
     for i, used in enumerate(segments):
         report = reports[i] if reports else None
-        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and report else None
+        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and stored[i] and report else None
         for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
             got = file.get(seg.window[0]) if file else None
             if got:
