@@ -36,7 +36,7 @@ def main():
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
     from qr.sim.synth import SynthConfig, write_synth
-    from qr.pieces import estimated_pieces
+    from qr.pieces import rollout_pieces
     from qr.vehicle import load_vehicle
 
     v = load_vehicle("conf/vehicle/asctec_hummingbird.yaml")
@@ -50,8 +50,8 @@ def main():
         d = tmp / f"f{seed}"
         write_synth(d, v, [parse_effect_spec("inertia_error:dJxx=0.0035,dJyy=0,dJzz=0")],
                     SynthConfig(duration=a.duration, rate=a.rate, seed=seed))
-        st, ms = zip(*[(s, m) for s, m, _ in estimated_pieces(d / "flight.csv", read_flight(d / "flight.csv"), v,
-                                                              EvaluateConfig(horizon=a.horizon), filt)])
+        st, ms = zip(*[(s, m) for s, m, _ in rollout_pieces([d / "flight.csv"], [read_flight(d / "flight.csv")], v,
+                                                            EvaluateConfig(horizon=a.horizon), filt)[0]])
         t = st[0]["t"].to_numpy()
         cut = t[0] + 0.7 * (t[-1] - t[0])
         train, test, noise = diagnosis_windows(list(st), list(ms), [0] * len(st),

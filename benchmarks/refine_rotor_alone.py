@@ -38,7 +38,7 @@ def main():
     from qr.rollout import MODEL, RATE_FROZEN, EvaluateConfig, at, pool, score_plant, summary, windows
     from qr.sim.plant import true_params
     from qr.sim.synth import SynthConfig, write_synth
-    from qr.pieces import estimated_pieces
+    from qr.pieces import rollout_pieces
     from qr.vehicle import load_vehicle
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -49,7 +49,7 @@ def main():
     v = load_vehicle(ROOT / "conf" / "vehicle" / "crazyflie21_brushless.yaml")
     eff = [parse_effect_spec(f"motor_imbalance:d1=0,d2={a.d2},d3=0,d4=0")]
     filt = to_dict(compose(["filter=auto"]))["filter"]
-    pieces = lambda p: estimated_pieces(p, read_flight(p), v, EvaluateConfig(horizon=H), filt)  # noqa: E731
+    pieces = lambda p: rollout_pieces([p], [read_flight(p)], v, EvaluateConfig(horizon=H), filt)[0]  # noqa: E731
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         write_synth(tmp / "train", v, eff, SynthConfig(duration=a.duration, rate=100, seed=a.seed))

@@ -60,10 +60,10 @@ def windows_of(path, v):
     from qr.diagnose.refine import balance_rows, diagnosis_windows
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.pieces import estimated_pieces
+    from qr.pieces import rollout_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
-    st, ms, _ = zip(*estimated_pieces(path, read_flight(path), v, EvaluateConfig(horizon=H), filt))
+    st, ms, _ = zip(*rollout_pieces([path], [read_flight(path)], v, EvaluateConfig(horizon=H), filt)[0])
     t = st[0]["t"].to_numpy()
     cut = t[0] + 0.7 * (t[-1] - t[0])
     split = [{"train": [t[0], cut], "test": [cut + 0.5, t[-1]]}]

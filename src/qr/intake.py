@@ -99,12 +99,13 @@ def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: Inta
         if require is not None:
             require(f, fs)
         split.append(fs)
-    for f, fs in zip(names, split):
-        _say_segments(say, Path(f).name, fs)
+    shown = _shown(names)
+    for f, fs in zip(shown, split):
+        _say_segments(say, f, fs)
     if on_checked is not None:
         on_checked()
     flights = Flights(list(names), list(measured), split, checks)
-    return Intake(flights, _estimates([fs.used for fs in split], [Path(f).name for f in names], vehicle,
+    return Intake(flights, _estimates([fs.used for fs in split], shown, vehicle,
                                       settings.filter, reports, stored, say, settings.halves))
 
 
@@ -117,7 +118,7 @@ def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, repo
     out = []
     for i, used in enumerate(segments):
         report = reports[i] if reports else None
-        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and report else None
+        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and stored[i] and report else None
         for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
             got = file.get(seg.window[0]) if file else None
             if got:
@@ -131,6 +132,12 @@ def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, repo
                 table.attrs["flight"] = i
             out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
     return tuple(sorted(out, key=lambda e: (e.flight, e.window[0])))
+
+
+def _shown(names: list[str]) -> list[str]:
+    """Each flight as the messages name it: its file's name, its path where two names clash."""
+    short = [Path(f).name for f in names]
+    return [str(f) if short.count(n) > 1 else n for f, n in zip(names, short)]
 
 
 def _say_segments(say, name: str, fs: FlightSegments) -> None:

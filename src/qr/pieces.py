@@ -1,37 +1,38 @@
-"""The evaluate protocol's pieces of a flight with their start states: the one path by which ``qr evaluate``
-and ``qr learn residual`` get their windows (:func:`estimated_pieces`)."""
+"""The evaluate protocol's pieces of flights with their start states: how ``qr evaluate`` and ``qr learn
+residual`` take their flights (:func:`rollout_pieces`, through the one intake :func:`qr.intake.take`)."""
 
 from __future__ import annotations
 
 import pandas as pd
 
 from .errors import QrInputError
+from .intake import IntakeSettings, take
 from .rollout import EvaluateConfig, pieces
+from .segments import FlightSegments
 
 
-def estimated_pieces(path, flight: pd.DataFrame, vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
-                     report: dict | None = None, stored=None, say=lambda msg: None) -> list:
-    """The evaluate protocol's pieces of one flight: ``(states, measured, keep)`` per airborne, gap-free
-    segment (:func:`qr.rollout.pieces`), the start states from the filter stage's estimate.
+def intake_settings(ecfg: EvaluateConfig, filter_cfg: dict) -> IntakeSettings:
+    """A segment is used if it holds ``trim_s`` at each end and half a second to start from; the full estimate
+    alone (a rollout's start states need no cross-fitting)."""
+    return IntakeSettings(2 * ecfg.trim_s + 0.5, filter_cfg, tuple(ecfg.skip_checks),
+                          "evaluate.skip_checks=[{name}] at the end of the command", halves=False)
 
-    Split like ``qr diagnose`` splits a flight; each segment filtered with ``filter_cfg`` (the tuned noise
-    values of the filter stage's ``report`` frozen, when given) or, with ``stored`` (the filter stage's
-    cross-fit file, with ``report``), its estimate read from there where it matches."""
-    from .estimation import estimate
-    from .estimation.crossfit import Estimates, fixed_settings
-    from .segments import flight_segments
 
-    fs = flight_segments(flight, vehicle, 2 * ecfg.trim_s + 0.5, path)
-    settings = fixed_settings(filter_cfg, report) if report else filter_cfg
-    stored = Estimates(stored, filter_cfg, report, vehicle) if stored is not None and report else None
-    out = []
-    for seg in fs.used:
-        got = stored.get(seg.window[0]) if stored else None
-        say(f"estimates of {path} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
-            + ("read from the filter stage" if got else "filtering"))
-        st = got[0] if got else estimate(seg.rows, vehicle, settings)[0]
-        out.append(pieces(st, seg.rows, ecfg.trim_s))
-    if not out:
+def _require(path, fs: FlightSegments) -> None:
+    if not fs.used:
         raise QrInputError(path, "no airborne, gap-free segment is long enough to evaluate",
                            "give a longer flight, or a smaller evaluate.trim_s")
+
+
+def rollout_pieces(names: list[str], measured: list[pd.DataFrame], vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
+                   reports: list | None = None, stored: list | None = None, say=lambda msg: None,
+                   vehicle_file=None) -> list[list]:
+    """Per flight (``names``, their rows ``measured``), the protocol's pieces ``(states, measured, keep)`` of each
+    used segment (:func:`qr.rollout.pieces`).  Every flight is checked (conventions, a usable segment) before
+    any is filtered; ``reports`` / ``stored``: per flight, the filter stage's report and cross-fit file."""
+    taken = take(names, measured, vehicle, intake_settings(ecfg, filter_cfg), vehicle_file, reports, stored, say,
+                 _require)
+    out: list[list] = [[] for _ in names]
+    for e in taken.estimates:
+        out[e.flight].append(pieces(e.states, e.rows, ecfg.trim_s))
     return out

@@ -316,3 +316,48 @@ def test_every_file_write_goes_through_the_atomic_writer():
     unlisted = [b for b in bad if (b[0], b[1]) not in UNATOMIC_WRITES]
     assert not unlisted, f"writes outside qr.atomic (write to atomic_path/atomic_dir's temporary): {unlisted}"
     assert listed == set(UNATOMIC_WRITES), f"no longer writing outside qr.atomic: {set(UNATOMIC_WRITES) - listed}"
+
+
+# ---- one intake: the convention checks and the filter's reports read in qr.intake only (issue 35) ----------
+
+
+def _intake_work(tree) -> list[tuple[str, int]]:
+    """(what, line) of each convention check called and each filter report (``.nis.json``) parsed: a call of
+    ``conventions.require`` or of a ``require`` imported from ``conventions``; a ``json.load(s)`` in a statement
+    that names a report (``nis`` or ``report``)."""
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").endswith("conventions") \
+                and any(a.name == "require" for a in node.names):
+            found.append(("conventions.require", node.lineno))
+        elif isinstance(node, ast.Attribute) and node.attr == "require" and isinstance(node.value, ast.Name) \
+                and node.value.id == "conventions":
+            found.append(("conventions.require", node.lineno))
+    for stmt in ast.walk(tree):
+        if isinstance(stmt, ast.stmt) and not isinstance(stmt, (ast.FunctionDef, ast.ClassDef, ast.With, ast.For,
+                                                                 ast.If, ast.Try, ast.AsyncFunctionDef)):
+            text = ast.unparse(stmt)
+            if re.search(r"\bjson\.loads?\(", text) and re.search(r"nis|report", text, re.I):
+                found.append(("reads a report", stmt.lineno))
+    return found
+
+
+def test_the_intake_search_finds_checks_and_report_reads():
+    tree = ast.parse("from .conventions import require\n"
+                     "def f(p, df):\n"
+                     "    conventions.require(df, None, p)\n"
+                     "    reports = [json.loads(Path(x).read_text()) for x in nis_files]\n"
+                     "    doc = json.loads(Path(p).read_text())\n")
+    assert sorted(_intake_work(tree)) == [("conventions.require", 1), ("conventions.require", 3),
+                                          ("reads a report", 4)]
+
+
+def test_only_the_intake_checks_conventions_and_reads_the_filters_reports():
+    """A command that reads flights takes them through :mod:`qr.intake` (the convention checks, the piece
+    cutting, the filter's reports read once): nothing else calls the checks or parses a ``.nis.json``."""
+    bad = []
+    for path in SRC.rglob("*.py"):
+        module = ".".join(path.relative_to(SRC.parent).with_suffix("").parts).removesuffix(".__init__")
+        if module not in ("qr.intake", "qr.conventions"):
+            bad += [(module, what, line) for what, line in _intake_work(ast.parse(path.read_text()))]
+    assert not bad, f"outside qr.intake (take flights through qr.intake.take, reports through read_reports): {bad}"

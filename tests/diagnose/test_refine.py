@@ -32,11 +32,11 @@ def _windows(path, vehicle, horizon, rate):
     from qr.diagnose.refine import diagnosis_windows
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.pieces import estimated_pieces
+    from qr.pieces import rollout_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
-    st, ms = zip(*[(s, m) for s, m, _ in estimated_pieces(path, read_flight(path), vehicle,
-                                                          EvaluateConfig(horizon=horizon), filt)])
+    st, ms = zip(*[(s, m) for s, m, _ in rollout_pieces([path], [read_flight(path)], vehicle,
+                                                        EvaluateConfig(horizon=horizon), filt)[0]])
     t = st[0]["t"].to_numpy()
     cut = t[0] + 0.7 * (t[-1] - t[0])
     return diagnosis_windows(list(st), list(ms), [0] * len(st), [{"train": [t[0], cut], "test": [cut + 0.5, t[-1]]}],

@@ -34,10 +34,10 @@ def _pieces(path, vehicle):
     from qr.config import compose, to_dict
     from qr.flight import read_flight
     from qr.rollout import EvaluateConfig
-    from qr.pieces import estimated_pieces
+    from qr.pieces import rollout_pieces
 
     filt = to_dict(compose(["filter=auto"]))["filter"]
-    return estimated_pieces(path, read_flight(path), vehicle, EvaluateConfig(horizon=H), filt)
+    return rollout_pieces([path], [read_flight(path)], vehicle, EvaluateConfig(horizon=H), filt)[0]
 
 
 @pytest.fixture(scope="module")

@@ -231,6 +231,21 @@ def test_bad_settings_are_one_line_and_write_nothing(flights, tmp_path, capsys, 
     assert not (tmp_path / "o").exists()
 
 
+def test_a_log_in_another_frame_is_refused_in_one_line_before_any_training(flights, tmp_path, capsys):
+    """The one intake's convention checks (as qr diagnose and qr evaluate refuse it): an attitude written world ->
+    body (the quaternion conjugated) is refused in one line naming the file, the mistake and the skip, exit 2,
+    nothing written."""
+    df = pd.read_csv(flights / "a" / "flight.csv")
+    f = tmp_path / "conjugate.csv"
+    df.assign(qx=-df.qx, qy=-df.qy, qz=-df.qz).to_csv(f, index=False)
+    args = ["learn", "residual", f, "--vehicle", flights / "a" / "vehicle.yaml", "--out", tmp_path / "o", *TINY]
+    status, _, err = run_cli(args, capsys)
+    (line,) = err.strip().splitlines()
+    assert status == 2 and str(f) in line and "world -> body" in line, err
+    assert "fix: " in line and "evaluate.skip_checks=[" in line, line
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_malformed_residual_in_a_vehicle_file_is_one_line(trained, tmp_path, capsys):
     _, out = trained
     raw = yaml.safe_load((out / "hybrid_vehicle.yaml").read_text())

@@ -1,7 +1,7 @@
 """A residual trained through the rollout (``qr learn residual``, docs/spec/hybrid.md), as a library.
 
 ``run(flights, measured, infos, vehicle, vehicle_file, settings) -> ResidualTraining`` (:mod:`.training`)
-cuts the flights into the evaluate protocol's windows (:func:`qr.pieces.estimated_pieces`), trains the
+cuts the flights into the evaluate protocol's windows (:func:`qr.pieces.rollout_pieces`), trains the
 network (:mod:`qr.residual_fit`) and, where asked, the band's ensemble (:mod:`qr.ensemble`), and scores
 the hybrid on the validation windows; :func:`.training.check_flights` refuses what must not train.
 ``document`` makes training.json of a :class:`ResidualTraining`, ``report`` its report.md and figure

@@ -173,7 +173,7 @@ def run(flights: list[str], measured: list, infos: dict[str, FlightInfo], vehicl
         say=lambda msg: None) -> ResidualTraining:
     """Train on ``flights`` (``measured``: their rows; ``infos``: :func:`check_flights`) on top of ``vehicle``.
     ``reports`` / ``estimates``: the filter stage's report and cross-fit file of each flight."""
-    from ..pieces import estimated_pieces
+    from ..pieces import rollout_pieces
     from ..rollout import windows
     from ..vehicle import vehicle_from_dict
 
@@ -183,12 +183,9 @@ def run(flights: list[str], measured: list, infos: dict[str, FlightInfo], vehicl
         raw.pop("torque_remainder")
         vehicle = vehicle_from_dict(raw, vehicle_file)
     t0 = time.perf_counter()
-    pieces = []
-    for i, (f, rows) in enumerate(zip(flights, measured)):
-        for st, meas, keep in estimated_pieces(f, rows, vehicle, ecfg, settings.filter,
-                                               reports[i] if reports else None,
-                                               estimates[i] if estimates and reports else None, say):
-            pieces.append((f, windows(st, meas, rcfg.horizon, ecfg.max_input_gap, keep)))
+    cut = rollout_pieces(flights, measured, vehicle, ecfg, settings.filter, reports, estimates, say, vehicle_file)
+    pieces = [(f, windows(st, meas, rcfg.horizon, ecfg.max_input_gap, keep)) for f, ps in zip(flights, cut)
+              for st, meas, keep in ps]
     estimate_s = time.perf_counter() - t0
     _, val, by = holdout.validation(flights, ecfg.split, rcfg.validation, infos)
     parts, split = rf.split(pieces, rcfg.horizon, rcfg.validation, rcfg.stride, val, by)

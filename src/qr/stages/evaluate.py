@@ -1,6 +1,6 @@
 """``qr evaluate``: score vehicle models by multi-step open-loop rollout (docs/spec/evaluate.md).
 
-Reads the flights and vehicles, cuts each flight into the protocol's pieces (:func:`estimated_pieces`),
+Reads the flights and vehicles, takes each flight's pieces (:func:`rollout_pieces`),
 runs :func:`qr.evaluate.run`, writes ``OUTDIR/evaluation.json``, ``report.md`` and ``figures/`` all at once
 (checked first, built in a temporary folder) and tracks the run (experiment ``qr-evaluate``).  The
 workflow's held-out protocol: :mod:`qr.stages.evaluate_sets`.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 
-from ..pieces import estimated_pieces
+from ..pieces import rollout_pieces
 
 OUTPUTS = ("evaluation.json", "report.md", "figures/")
 
@@ -41,7 +41,6 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     names = model_names([str(v) for v in vehicles])
     vehs = loaded or [load_vehicle(v) for v in vehicles]
     scored = given(flights, reports, estimates, [read_flight(f) for f in flights])
-    from .. import conventions
     from ..atomic import atomic_dir, write_json
     from ..config import compose_stage
     from ..evaluate import document, report
@@ -51,14 +50,13 @@ def run_evaluation(flights, vehicles, out, overrides=(), force: bool = False, lo
     s = Settings.of(compose_stage(overrides, "evaluate", "evaluate.horizon=100"))
     scored, trained, split = sides(scored, given(t["flights"], t.get("reports"), t.get("estimates")) if t else None,
                                    split, s.evaluate, say)
-    cut = lambda g: estimated_pieces(g.path, read_flight(g.path) if g.measured is None else g.measured,  # noqa: E731
-                                     vehs[0], s.evaluate, s.filter, g.report, g.estimates, say)
-    train = [p for g in trained for p in cut(g)] if trained else None
-    for g in scored:
-        conventions.require(g.measured, vehs[0], g.path, s.evaluate.skip_checks,
-                            "evaluate.skip_checks=[{name}] at the end of the command", vehicles[0])
-    result = run([(g.path, cut(g)) for g in scored], [Model(k, str(v), lab, veh) for k, v, lab, veh in
-                                                      zip(names, vehicles, labels or names, vehs)],
+    both = [*scored, *(trained or ())]  # taken at once: every flight checked before any is filtered
+    cut = rollout_pieces([g.path for g in both], [read_flight(g.path) if g.measured is None else g.measured
+                                                   for g in both], vehs[0], s.evaluate, s.filter,
+                         [g.report for g in both], [g.estimates for g in both], say, vehicles[0])
+    train = [p for ps in cut[len(scored):] for p in ps] if trained else None
+    result = run(list(zip([g.path for g in scored], cut)), [Model(k, str(v), lab, veh) for k, v, lab, veh in
+                                                            zip(names, vehicles, labels or names, vehs)],
                  s, train, [g.path for g in trained] if trained else None, split, say)
     doc = document.document(result)
     with atomic_dir(out, force=force, command="qr evaluate") as tmp:

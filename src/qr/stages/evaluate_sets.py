@@ -19,6 +19,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..holdout import held_out
+from ..intake import read_reports
 from .evaluate import run_evaluation
 
 HELD_OUT_MODELS = "held_out_models"  # (in the training diagnosis's folder)
@@ -51,7 +52,7 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     flights = [str(f) for f in flights]
     a = held_out(flights, split)
     train, test = list(a.train), list(a.test)
-    reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
+    reports = dict(zip(flights, read_reports(nis_files)))
     if len(train) == 1 and single_overrides:
         overrides = single_overrides
     stored = dict(zip(flights, estimates)) if estimates else {}
@@ -104,7 +105,7 @@ def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, tr
     flights = [str(f) for f in flights]
     a = held_out(flights, split)
     test = list(a.test)
-    reports = dict(zip(flights, [json.loads(Path(p).read_text()) for p in nis_files]))
+    reports = dict(zip(flights, read_reports(nis_files)))
     stored = dict(zip(flights, estimates)) if estimates else {}
     return run_evaluation(test, [vehicle, *vehicles], eval_out, log=_quiet,
                           reports=[reports[f] for f in test], track=track,
