@@ -27,7 +27,7 @@ from qr.rollout import EvaluateConfig, windows
 from qr.rollout_torch import DTYPE, ResidualNet, body_features, rollout, window_errors
 from qr.plant_state import X_QUAT, X_RATE, X_VEL
 from qr.sim.plant import true_params
-from qr.pieces import estimated_pieces
+from qr.pieces import rollout_pieces
 from qr.stages.learn_residual import compose
 from qr.vehicle import load_vehicle, vehicle_from_dict
 
@@ -66,7 +66,7 @@ def batch(names, stride=1):
         path = results / "ingest" / set_name / f"{f}.parquet"
         rep = json.loads((results / "filter" / set_name / f"{f}.nis.json").read_text())
         est = results / "filter" / set_name / f"{f}.crossfit.parquet"
-        for st, meas, keep in estimated_pieces(str(path), read_flight(str(path)), phys, ecfg, fcfg, rep, str(est)):
+        for st, meas, keep in rollout_pieces([str(path)], [read_flight(str(path))], phys, ecfg, fcfg, [rep], [str(est)])[0]:
             w = windows(st, meas, H, ecfg.max_input_gap, keep)
             s = rf.full_starts(w, H)[::stride]
             if len(s):

@@ -54,7 +54,7 @@ from qr.flight import read_flight
 from qr.rollout import EvaluateConfig, windows, score_plant, summary, pool, at, MODEL, RATE_FROZEN
 from qr.envelope import Envelope
 from qr.sim.plant import true_params
-from qr.pieces import estimated_pieces
+from qr.pieces import rollout_pieces
 from qr.stages.learn_residual import compose
 
 plain = to_dict(compose([f"learn.horizon={H}", f"evaluate.horizon={H}"]))
@@ -63,7 +63,7 @@ nom = load_vehicle(tmp / "a" / "vehicle.yaml")
 def wins(name):
     f = tmp / name / "flight.csv"
     return [windows(st, meas, H, ecfg.max_input_gap, keep) for st, meas, keep in
-            estimated_pieces(str(f), read_flight(str(f)), nom, ecfg, fcfg)]
+            rollout_pieces([str(f)], [read_flight(str(f))], nom, ecfg, fcfg)[0]]
 env = Envelope.of(wins("a") + wins("b"), H)
 fast = wins("fast")
 models = {"rate_frozen": (true_params(nom, residual=False), RATE_FROZEN)}
