@@ -215,12 +215,11 @@ def _umask() -> int:
 # ---- text and JSON -------------------------------------------------------------------------------
 
 def write_text(dest: str | Path, text: str) -> None:
-    with atomic_path(dest) as tmp:
-        tmp.write_text(text)
+    write_file(dest, text)
 
 
 def write_file(dest: str | Path, data: str | bytes) -> None:
-    """Text (as :func:`write_text`) or bytes; the folders up to it made."""
+    """Text or bytes; the folders up to it made."""
     with atomic_path(dest) as tmp:
         tmp.write_text(data) if isinstance(data, str) else tmp.write_bytes(data)
 

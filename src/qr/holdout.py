@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import ClassVar
 
 from .allowed import check_fields, setting, show
@@ -268,11 +267,6 @@ def describe(assignment: Assignment, infos: dict[str, FlightInfo] | None) -> str
 
     return (f"scored: {len(assignment.test)} flights ({kinds(assignment.test)}); trained on {len(assignment.train)} "
             f"({kinds(assignment.train)})")
-
-
-def stems(paths) -> list[str]:
-    """Flight names of files named after them (``results/ingest/brushless/eckart00.parquet`` -> ``eckart00``)."""
-    return [Path(str(p)).stem for p in paths]
 
 
 # ---- the workflow's folds: the held-out splits it runs per set (conf/data/*.yaml, workflow.generalization) ----

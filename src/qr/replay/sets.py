@@ -25,9 +25,9 @@ def _replayable(tr, trajectory_files: dict) -> bool:
 def replayed_flights(set_cfg: dict, trajectory_files: dict) -> list[str]:
     """The flights the workflow replays: held out by the rollout's rule (the repeat split: the models the
     workflow writes for the set are trained on the others), with a trajectory file and a time scale."""
-    from ..holdout import SplitConfig, assign
+    from ..holdout import held_out_by_flight
 
-    held_out = assign([str(f) for f in set_cfg["flights"]], SplitConfig(), require=False).test
+    _, held_out = held_out_by_flight([str(f) for f in set_cfg["flights"]])
     return [f for f in held_out if _replayable(flight_trajectory(set_cfg, f), trajectory_files)]
 
 

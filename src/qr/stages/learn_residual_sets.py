@@ -14,11 +14,10 @@ from pathlib import Path
 
 from ..errors import QrInputError
 from .learn_residual import compose, run_residual
-from .sweep_callback import SweepCallback
+from .sweep_callback import PARENT_FILE, SweepCallback
 
 JOB = __name__.rsplit(".", 1)[-1]  # Hydra's job name for the sweeps' jobs (the task's module, :func:`_job`)
 SWEEP_CSV = "sweep.csv"
-PARENT_FILE = ".mlflow_parent"
 
 
 def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = None,
