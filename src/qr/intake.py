@@ -34,14 +34,10 @@ STORED_SPAN_S = 1.0  # the filter stage's cross-fit file (and the learning data 
 
 
 def min_segment_s(trim_s: float, span_s: float) -> float:
-    """The one minimum length of a used segment (:func:`qr.segments.flight_segments`): ``trim_s`` dropped at each
-    end (the filters' start-up and end) and ``span_s`` left between for what the reader does with it.
-
-    The readers need different spans: a diagnosis one cross-validation block (``diagnose.block_s``: a shorter
-    segment adds no block to select or score on); a rollout (``qr evaluate``, ``qr learn residual``)
-    :data:`ROLLOUT_SPAN_S` of starts; the filter stage, which trims nothing and does not know its readers'
-    settings, stores :data:`STORED_SPAN_S` or longer (a reader that uses a shorter segment filters it itself,
-    the same numbers; the learning data set takes every stored segment)."""
+    """The one minimum length of a used segment: ``trim_s`` dropped at each end (the filters' start-up and end)
+    and ``span_s`` left between for the reader: a diagnosis one cross-validation block (``diagnose.block_s``), a
+    rollout :data:`ROLLOUT_SPAN_S` of starts, the filter stage (no trim, its readers' settings unknown: one
+    that uses a shorter segment filters it itself) :data:`STORED_SPAN_S`."""
     return 2 * trim_s + span_s
 
 

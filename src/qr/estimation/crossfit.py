@@ -139,10 +139,8 @@ def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: b
 
 def estimate_segments(used: list, vehicle, filter_cfg: dict, report: dict | None, halves: bool = True,
                       stored: "Estimates | None" = None):
-    """The one loop over a flight's ``used`` segments, the longest first (where a tuning filter is tuned, once per
-    flight): yields ``(segment, states, halves, report, source)``, each segment's estimates read from ``stored``
-    (the flight's cross-fit file) where it has them, else filtered (:func:`prepare_flight`); ``report``: the one
-    the filters have used so far (tuned on the first segment filtered where it was None)."""
+    """``(segment, states, halves, report so far, source)`` of a flight's ``used`` segments, the longest first (a
+    tuning filter is tuned there): read from ``stored`` (its cross-fit file) where it has them, else filtered."""
     for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
         got = stored.get(seg.window[0]) if stored else None
         if got:
@@ -156,8 +154,7 @@ def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: d
         -> tuple[pd.DataFrame, dict]:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
-    diagnosis's own recipe (:func:`estimate_segments`); the segments stored are those of at least
-    :func:`qr.intake.min_segment_s` with no trim and :data:`qr.intake.STORED_SPAN_S`."""
+    diagnosis's own recipe (:func:`estimate_segments`)."""
     from ..intake import STORED_SPAN_S, min_segment_s
 
     tables = []
