@@ -6,7 +6,7 @@ Each fact once:
 - the convention checks (:mod:`qr.conventions`, :func:`check_conventions`): a log in another frame, order or
   unit is refused in one line naming the setting that skips the check;
 - the piece cutting (:func:`qr.segments.flight_segments`): airborne, gap-free segments, those shorter than the
-  command's minimum length (:func:`min_segment_s`, the one rule) kept but not used;
+  command's minimum length (:func:`qr.segments.min_segment_s`, the one rule) kept but not used;
 - the filter stage's tuning record (its ``.nis.json``, :func:`read_reports`) and cross-fit file: a segment's
   estimates read where the filter stage made them with the same settings, else filtered by the same recipe
   (:func:`qr.estimation.crossfit.prepare_flight`, the longest segment first: a tuning filter is tuned there
@@ -27,18 +27,6 @@ from .segments import FlightSegments, flight_segments
 
 if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
     from .estimation.crossfit import SegmentEstimate
-
-
-ROLLOUT_SPAN_S = 0.5  # a rollout's segment: half a second of starts between its trims
-STORED_SPAN_S = 1.0  # the filter stage's cross-fit file (and the learning data set read from it)
-
-
-def min_segment_s(trim_s: float, span_s: float) -> float:
-    """The one minimum length of a used segment: ``trim_s`` dropped at each end (the filters' start-up and end)
-    and ``span_s`` left between for the reader: a diagnosis one cross-validation block (``diagnose.block_s``), a
-    rollout :data:`ROLLOUT_SPAN_S` of starts, the filter stage (no trim, its readers' settings unknown: one
-    that uses a shorter segment filters it itself) :data:`STORED_SPAN_S`."""
-    return 2 * trim_s + span_s
 
 
 def shown(paths) -> list[str]:

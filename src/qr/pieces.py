@@ -6,9 +6,9 @@ from __future__ import annotations
 import pandas as pd
 
 from .errors import QrInputError
-from .intake import ROLLOUT_SPAN_S, IntakeSettings, min_segment_s, take
+from .intake import IntakeSettings, take
 from .rollout import EvaluateConfig, pieces
-from .segments import FlightSegments
+from .segments import ROLLOUT_SPAN_S, FlightSegments, min_segment_s
 
 
 def intake_settings(ecfg: EvaluateConfig, filter_cfg: dict) -> IntakeSettings:

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 
 from ..errors import QrInputError
-from ..intake import IntakeSettings, min_segment_s
-from ..segments import FlightSegments
+from ..intake import IntakeSettings
+from ..segments import FlightSegments, min_segment_s
 from .settings import DiagnoseConfig
 
 

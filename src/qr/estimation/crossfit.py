@@ -31,7 +31,7 @@ import pandas as pd
 from ..atomic import atomic_path
 from ..errors import QrInputError
 from ..parallel import thread_map
-from ..segments import flight_segments
+from ..segments import STORED_SPAN_S, flight_segments, min_segment_s
 from .matched import add_matched_rotor_signals
 from .pipeline import TUNED_NIS_NOTE, estimate, tuned_noise
 from .settings import resolve
@@ -155,8 +155,6 @@ def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: d
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
     diagnosis's own recipe (:func:`estimate_segments`)."""
-    from ..intake import STORED_SPAN_S, min_segment_s
-
     tables = []
     for seg, st, pair, report, _ in estimate_segments(
             flight_segments(flight, vehicle, min_segment_s(0.0, STORED_SPAN_S)).used, vehicle, filter_cfg, report):
