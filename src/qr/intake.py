@@ -6,7 +6,7 @@ Each fact once:
 - the convention checks (:mod:`qr.conventions`, :func:`check_conventions`): a log in another frame, order or
   unit is refused in one line naming the setting that skips the check;
 - the piece cutting (:func:`qr.segments.flight_segments`): airborne, gap-free segments, those shorter than the
-  command's one minimum length (:attr:`IntakeSettings.min_segment_s`) kept but not used;
+  command's minimum length (:func:`qr.segments.min_segment_s`, the one rule) kept but not used;
 - the filter stage's tuning record (its ``.nis.json``, :func:`read_reports`) and cross-fit file: a segment's
   estimates read where the filter stage made them with the same settings, else filtered by the same recipe
   (:func:`qr.estimation.crossfit.prepare_flight`, the longest segment first: a tuning filter is tuned there
@@ -27,6 +27,12 @@ from .segments import FlightSegments, flight_segments
 
 if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
     from .estimation.crossfit import SegmentEstimate
+
+
+def shown(paths) -> list[str]:
+    """Each file as messages and keys name it: its name, its path where two names clash."""
+    short = [Path(str(f)).name for f in paths]
+    return [str(f) if short.count(n) > 1 else n for f, n in zip(paths, short)]
 
 
 @dataclass(frozen=True)
@@ -99,45 +105,33 @@ def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: Inta
         if require is not None:
             require(f, fs)
         split.append(fs)
-    shown = _shown(names)
-    for f, fs in zip(shown, split):
+    named = shown(names)
+    for f, fs in zip(named, split):
         _say_segments(say, f, fs)
     if on_checked is not None:
         on_checked()
     flights = Flights(list(names), list(measured), split, checks)
-    return Intake(flights, _estimates([fs.used for fs in split], shown, vehicle,
+    return Intake(flights, _estimates([fs.used for fs in split], named, vehicle,
                                       settings.filter, reports, stored, say, settings.halves))
 
 
 def _estimates(segments: list, names: list[str], vehicle, filter_cfg: dict, reports: list | None,
                stored: list | None, say, halves: bool) -> tuple[SegmentEstimate, ...]:
-    """Every flight's used ``segments`` estimated: read from the flight's cross-fit file where it was made with
-    the same settings, else filtered (:func:`prepare_flight`), the longest segment first."""
-    from .estimation.crossfit import Estimates, SegmentEstimate, prepare_flight
+    """Every flight's used ``segments`` estimated (:func:`qr.estimation.crossfit.estimate_segments`), read from
+    the flight's cross-fit file where it was made with the same settings."""
+    from .estimation.crossfit import Estimates, SegmentEstimate, estimate_segments
 
     out = []
     for i, used in enumerate(segments):
         report = reports[i] if reports else None
         file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and stored[i] and report else None
-        for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
-            got = file.get(seg.window[0]) if file else None
-            if got:
-                (st, pair), source = (got[0], got[1] if halves else None), "read from the filter stage"
-            else:
-                st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report, halves)
-                source = f"filter={filter_cfg.get('name', '?')}"
+        for seg, st, pair, _, source in estimate_segments(used, vehicle, filter_cfg, report, halves, file):
             say(f"estimates of {names[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
                 f"{source}")
             for table in (st, *(pair or ())):
                 table.attrs["flight"] = i
             out.append(SegmentEstimate(i, seg.window, seg.rows, st, pair))
     return tuple(sorted(out, key=lambda e: (e.flight, e.window[0])))
-
-
-def _shown(names: list[str]) -> list[str]:
-    """Each flight as the messages name it: its file's name, its path where two names clash."""
-    short = [Path(f).name for f in names]
-    return [str(f) if short.count(n) > 1 else n for f, n in zip(names, short)]
 
 
 def _say_segments(say, name: str, fs: FlightSegments) -> None:

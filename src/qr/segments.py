@@ -20,6 +20,16 @@ from .airborne import check_airborne
 
 GAP_STEPS = 10
 GAP_MIN_S = 0.1
+ROLLOUT_SPAN_S = 0.5  # a rollout's segment: half a second of starts between its trims
+STORED_SPAN_S = 1.0  # the filter stage's cross-fit file (and the learning data set read from it)
+
+
+def min_segment_s(trim_s: float, span_s: float) -> float:
+    """The one minimum length of a used segment: ``trim_s`` dropped at each end (the filters' start-up and end)
+    and ``span_s`` left between for the reader: a diagnosis one cross-validation block (``diagnose.block_s``), a
+    rollout :data:`ROLLOUT_SPAN_S` of starts, the filter stage (no trim, its readers' settings unknown: one
+    that uses a shorter segment filters it itself) :data:`STORED_SPAN_S`."""
+    return 2 * trim_s + span_s
 
 
 def gap_threshold(t: np.ndarray) -> float:

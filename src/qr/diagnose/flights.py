@@ -11,13 +11,14 @@ import math
 
 from ..errors import QrInputError
 from ..intake import IntakeSettings
-from ..segments import FlightSegments
+from ..segments import FlightSegments, min_segment_s
 from .settings import DiagnoseConfig
 
 
 def intake_settings(cfg: DiagnoseConfig, filter_cfg: dict) -> IntakeSettings:
-    """A segment is used if it holds ``trim_s`` at each end and one cross-validation block."""
-    return IntakeSettings(2 * cfg.trim_s + cfg.block_s, filter_cfg, tuple(cfg.skip_checks),
+    """A segment is used if it holds ``trim_s`` at each end and one cross-validation block
+    (:func:`qr.intake.min_segment_s`)."""
+    return IntakeSettings(min_segment_s(cfg.trim_s, cfg.block_s), filter_cfg, tuple(cfg.skip_checks),
                           "diagnose.skip_checks=[{name}] at the end of the command")
 
 
@@ -38,8 +39,9 @@ def _check_length(path, fs: FlightSegments, need: float, cfg: DiagnoseConfig, bl
                "at the end of the command" if fits >= 0.5 else "")
     fix = f"give a longer flight (30 s or more) or several flights{shorter}"
     if not fs.used:
-        raise QrInputError(path, f"no airborne stretch without a time gap lasts {2 * cfg.trim_s + cfg.block_s:.1f} s "
-                                 f"(2 trim_s + block_s; the longest: {longest:.1f} s)", fix)
+        raise QrInputError(path, f"no airborne stretch without a time gap lasts "
+                                 f"{min_segment_s(cfg.trim_s, cfg.block_s):.1f} s (2 trim_s + block_s; the longest: "
+                                 f"{longest:.1f} s)", fix)
     if lasts - 2 * cfg.trim_s * n < need:
         where = "airborne" if not fs.gaps else f"airborne in {n} segment{'s' if n > 1 else ''} between time gaps"
         raise QrInputError(path, f"flight lasts {lasts:.1f} s {where}, too short to hold out a test part "

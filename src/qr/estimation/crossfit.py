@@ -31,7 +31,7 @@ import pandas as pd
 from ..atomic import atomic_path
 from ..errors import QrInputError
 from ..parallel import thread_map
-from ..segments import flight_segments
+from ..segments import STORED_SPAN_S, flight_segments, min_segment_s
 from .matched import add_matched_rotor_signals
 from .pipeline import TUNED_NIS_NOTE, estimate, tuned_noise
 from .settings import resolve
@@ -93,7 +93,6 @@ def _states(flight: pd.DataFrame, vehicle, cfg: dict) -> pd.DataFrame:
 # ---- the filter stage's cross-fit file: every segment's estimates, written once, read by each diagnosis ----
 
 PARTS = ("full", "even", "odd")
-MIN_SEGMENT_S = 1.0  # shorter segments are not written (no diagnosis setting uses one; it filters them itself)
 
 
 def key(filter_cfg: dict, report: dict, vehicle) -> str:
@@ -138,17 +137,28 @@ def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: b
             "tuned_on_s": [seg.window[0], seg.window[1]], "nis_note": TUNED_NIS_NOTE}
 
 
-def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None,
-                      min_s: float = MIN_SEGMENT_S) -> tuple[pd.DataFrame, dict]:
+def estimate_segments(used: list, vehicle, filter_cfg: dict, report: dict | None, halves: bool = True,
+                      stored: "Estimates | None" = None):
+    """``(segment, states, halves, report so far, source)`` of a flight's ``used`` segments, the longest first (a
+    tuning filter is tuned there): read from ``stored`` (its cross-fit file) where it has them, else filtered."""
+    for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
+        got = stored.get(seg.window[0]) if stored else None
+        if got:
+            yield seg, got[0], got[1] if halves else None, report, "read from the filter stage"
+        else:
+            st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report, halves)
+            yield seg, st, pair, report, f"filter={filter_cfg.get('name', '?')}"
+
+
+def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None) \
+        -> tuple[pd.DataFrame, dict]:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
     (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
-    diagnosis's own recipe (:func:`prepare_flight`), the longest segment first, where a
-    tuning filter is tuned."""
+    diagnosis's own recipe (:func:`estimate_segments`)."""
     tables = []
-    for seg in sorted(flight_segments(flight, vehicle, min_s).used, key=lambda s: s.window[0] - s.window[1]):
-        st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report)
-        for part, table in zip(PARTS, (st, *pair)):
-            tables.append(table.assign(segment_start=seg.window[0], part=part))
+    for seg, st, pair, report, _ in estimate_segments(
+            flight_segments(flight, vehicle, min_segment_s(0.0, STORED_SPAN_S)).used, vehicle, filter_cfg, report):
+        tables += [table.assign(segment_start=seg.window[0], part=part) for part, table in zip(PARTS, (st, *pair))]
     return pd.concat(tables, ignore_index=True), report
 
 

@@ -12,7 +12,6 @@ filter stage's estimate) is scored for the references ``hold`` and ``rate_frozen
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -24,6 +23,7 @@ from ..envelope import Envelope, check
 from ..errors import QrInputError
 from ..estimation.settings import resolve as resolve_filter
 from ..holdout import Assignment, assign
+from ..intake import shown
 from ..rollout import REFERENCES, EvaluateConfig
 from ..vehicle import Vehicle
 
@@ -116,9 +116,8 @@ def sides(scored: list[Given], trained: list[Given] | None, split: Assignment | 
 
 
 def model_names(vehicles: list[str]) -> list[str]:
-    """Each vehicle file's name as the models' key (its path where two names clash)."""
-    names = [Path(v).name for v in vehicles]
-    out = [str(v) if names.count(n) > 1 else n for v, n in zip(vehicles, names)]
+    """Each vehicle file's name as the models' key (its path where two names clash: :func:`qr.intake.shown`)."""
+    out = shown(vehicles)
     for ref in REFERENCES:
         if ref in out:
             raise QrInputError(ref, f"a vehicle file named '{ref}' clashes with the reference model of that name",

@@ -38,11 +38,12 @@ def _trained(a, reports: dict, stored: dict) -> dict:
 
 
 def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
-                      track: str | None = None, estimates=None, split=None) -> dict:
+                      track: str | None = None, estimates=None, split=None, reports: dict | None = None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal, extended,
     refined and hybrid vehicles on the held-out ones (with ``single_overrides`` instead of ``overrides`` when
     one flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use).  ``split``:
-    which flights are held out (:func:`qr.holdout.held_out`)."""
+    which flights are held out (:func:`qr.holdout.held_out`); ``reports``: flight -> its ``nis_files`` report,
+    already read."""
     from ..errors import QrInputError
     from .diagnose import run_diagnosis
 
@@ -52,7 +53,7 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     flights = [str(f) for f in flights]
     a = held_out(flights, split)
     train, test = list(a.train), list(a.test)
-    reports = dict(zip(flights, read_reports(nis_files)))
+    reports = reports or dict(zip(flights, read_reports(nis_files)))
     if len(train) == 1 and single_overrides:
         overrides = single_overrides
     stored = dict(zip(flights, estimates)) if estimates else {}
@@ -98,14 +99,14 @@ def held_out_models(vehicle, diagnosis, doc: dict, out_dir: Path) -> tuple[list[
 
 
 def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, track: str | None = None,
-                     estimates=None, split=None) -> dict:
+                     estimates=None, split=None, reports: dict | None = None) -> dict:
     """``vehicles`` (labelled ``labels``) on the flights the held-out protocol holds out under ``split``,
     beside the nominal ``vehicle`` and the references: the workflow's rollout-trained residuals, scored on
-    the same flights as :func:`evaluate_held_out`'s models."""
+    the same flights as :func:`evaluate_held_out`'s models (``reports``: as there)."""
     flights = [str(f) for f in flights]
     a = held_out(flights, split)
     test = list(a.test)
-    reports = dict(zip(flights, read_reports(nis_files)))
+    reports = reports or dict(zip(flights, read_reports(nis_files)))
     stored = dict(zip(flights, estimates)) if estimates else {}
     return run_evaluation(test, [vehicle, *vehicles], eval_out, log=_quiet,
                           reports=[reports[f] for f in test], track=track,
@@ -120,7 +121,8 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     ``OUT/held_out/``), and where the fold asks for it a residual trained through the rollout on the training
     flights (validation: whole trajectories of the training side; ``residual_overrides``: ``qr learn
     residual``'s) and scored on the same flights (``OUT/residual/``, ``OUT/learned/``); ``OUT/fold.json``
-    (the split and what each step took, s) last.  Returns ``fold.json``'s document."""
+    (the split and what each step took, s) last.  Returns ``fold.json``'s document.  The filter stage's reports
+    are read once, for every step."""
     from ..atomic import write_json
     from .learn_residual_sets import train_held_out
 
@@ -130,21 +132,22 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     a = held_out(flights, fold.split)
     seconds = {}
     t0 = time.perf_counter()
+    reports = dict(zip(flights, read_reports(nis_files)))
     log(f"fold {fold.name}: {a.held_out}; diagnosing {len(a.train)} flights, scoring {len(a.test)}")
     evaluate_held_out(flights, nis_files, vehicle, out / "training_diagnosis", out / "held_out", overrides,
-                      single_overrides, track=track, estimates=estimates, split=fold.split)
+                      single_overrides, track=track, estimates=estimates, split=fold.split, reports=reports)
     seconds["diagnose_and_evaluate"] = time.perf_counter() - t0
     if fold.hybrid:
         t0 = time.perf_counter()
         log(f"fold {fold.name}: training a residual through the rollout")
         train_held_out(flights, out / "training_diagnosis" / "extended_vehicle.yaml", out / "residual",
-                       list(residual_overrides), reports=nis_files, estimates=estimates, split=fold.split,
-                       track=False, log=log)
+                       list(residual_overrides), reports=[reports[f] for f in flights], estimates=estimates,
+                       split=fold.split, track=False, log=log)
         seconds["residual"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         evaluate_learned(flights, nis_files, vehicle, [out / "residual" / "hybrid_vehicle.yaml"], [RESIDUAL_LABEL],
                          out / "learned", track=f"{track}:learned" if track else None, estimates=estimates,
-                         split=fold.split)
+                         split=fold.split, reports=reports)
         seconds["evaluate_residual"] = time.perf_counter() - t0
     doc = {"schema": FOLD_SCHEMA, "fold": fold.to_dict(), "split": a.to_dict(), "seconds": seconds,
            "evaluations": ["held_out"] + (["learned"] if fold.hybrid else [])}

@@ -14,6 +14,7 @@ def run_replay(flights, vehicles, controller: str, out, overrides=(), force: boo
                track: str | None = None, log=None) -> dict:
     """Replay ``flights`` with each of ``vehicles`` under ``controller``; write ``out``; the document."""
     from ..errors import QrInputError
+    from ..intake import shown
     from ..outputs import check_out_dir
 
     out = check_out_dir(out, inputs=[*flights, *vehicles], force=force, expected=OUTPUTS)
@@ -21,8 +22,7 @@ def run_replay(flights, vehicles, controller: str, out, overrides=(), force: boo
     from ..vehicle import load_vehicle
 
     say = log or (lambda msg: print(f"qr replay: {msg}", file=sys.stderr))
-    names = [Path(str(v)).name for v in vehicles]  # a vehicle's key: its file's name (its path where two clash)
-    keys = [str(v) if names.count(n) > 1 else n for v, n in zip(vehicles, names)]
+    keys = shown(vehicles)  # a vehicle's key: its file's name (its path where two clash)
     if len(set(keys)) < len(keys):
         raise QrInputError(keys[0], "the same vehicle file is given twice", "give each --vehicle once")
     vehs = [load_vehicle(v) for v in vehicles]
