@@ -29,6 +29,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeAlias
 
 import numba as nb
 import numpy as np
@@ -152,7 +153,7 @@ def spread(pieces: list[Windows], Ps: np.ndarray, H: int, first_piece: int = 0) 
 
 # ---- scale and coverage ------------------------------------------------------------------------------
 
-def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> dict:
+def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> Scale:
     """One scale per quantity: the ``level`` quantile over the samples of error / r₉₀, so that the scaled 90 %
     band covers ``level`` of them (None where no sample has both, or the radius is 0 too often)."""
     out = {}
@@ -171,7 +172,7 @@ def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> dict:
     return out
 
 
-def coverage(sp: Spread, scale: dict | None) -> dict:
+def coverage(sp: Spread, scale: Scale | None) -> dict:
     """Per quantity: the share of samples whose truth lies inside the 50 % and 90 % bands (radii × ``scale``,
     1 where none), the samples, the median scaled radii; and the mean of the quantities' shares."""
     by = {}
@@ -277,6 +278,11 @@ def current(vehicle, params: list[dict]) -> np.ndarray:
     return np.asarray(out, float)
 
 
+# the band's scale per quantity (the keys: rollout.QUANTITIES, as the bands file and training.json write it):
+# the factor on the radii that makes the 90 % band cover its share on validation data; None: none found
+Scale: TypeAlias = "dict[str, float | None]"
+
+
 # ---- band sources -------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -287,7 +293,7 @@ class Source:
 
     kind: str
     file: str
-    scale: dict | None
+    scale: Scale | None
     calibrated_on: str
     params: tuple = ()
     written: np.ndarray | None = None

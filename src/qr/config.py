@@ -8,10 +8,16 @@ from __future__ import annotations
 
 import functools
 from pathlib import Path
+from typing import TypeAlias
 
 from .shipped import CONF_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
+
+# a config group as composed (OmegaConf's plain container, :func:`to_dict`): the keys are the group's own
+# (conf/<group>/*.yaml, any experiment's additions), recorded verbatim in a command's JSON as ``config``
+Plain: TypeAlias = "str | int | float | bool | None | list[Plain] | dict[str, Plain]"
+Group: TypeAlias = "dict[str, Plain]"
 
 
 def compose(overrides=()):
@@ -129,7 +135,7 @@ def _type_error(e: Exception, overrides: list[str]):
     return QrInputError(key, f"{raw!r} is not allowed", f"give {key} {allowed.describe()}")
 
 
-def to_dict(cfg) -> dict:
+def to_dict(cfg) -> Group:
     from omegaconf import OmegaConf
 
     return OmegaConf.to_container(cfg, resolve=True)

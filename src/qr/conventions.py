@@ -80,6 +80,17 @@ class CheckResult:
                 **({"mistake": self.mistake, "fix": self.fix} if not self.passed else {})}
 
 
+@dataclass(frozen=True)
+class FlightChecks:
+    """One flight's convention checks, each with what it measured (``diagnosis.json``'s ``conventions``)."""
+
+    flight: str
+    checks: tuple[CheckResult, ...]
+
+    def record(self) -> dict:
+        return {"flight": self.flight, "checks": [c.as_dict() for c in self.checks]}
+
+
 def _with(df: pd.DataFrame, cols: list[str], values) -> pd.DataFrame:
     out = df.copy()
     out[cols] = np.asarray(values, float).reshape(len(df), len(cols))

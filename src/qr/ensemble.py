@@ -34,8 +34,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .bands import Scale
 
 MEMBERS_DIR = "members"
 BANDS_FILE = "hybrid_vehicle.bands.json"
@@ -190,7 +194,7 @@ def _done(r, k: int, members: int, training: list[str], log) -> Member:
     return r
 
 
-def calibrated(physical, centre, members: list[Member], parts: list, H: int) -> tuple[dict | None, str]:
+def calibrated(physical, centre, members: list[Member], parts: list, H: int) -> tuple[Scale | None, str]:
     """The band's scale per quantity on the validation windows (:func:`qr.bands.calibrate`) and where."""
     from . import bands
     from .sim.plant import true_params

@@ -17,6 +17,7 @@ the training flights did, with no threshold to choose.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -114,9 +115,25 @@ def spans(t: np.ndarray, flag: np.ndarray) -> list[list[float]]:
     return out
 
 
-def check(envelope: Envelope, pieces: list, H: int) -> dict:
-    """``evaluation.json``'s ``envelope`` entry of one flight: per piece (``qr.rollout.Windows``) the scored
-    starts outside, pooled: windows, share outside (any, and per quantity), the start times outside."""
+@dataclass(frozen=True)
+class Outside:
+    """One flight's scored windows against an envelope (:func:`check`)."""
+
+    windows: int  # the scored starts
+    outside: int  # those whose window leaves the envelope on any quantity
+    share_outside: float | None  # outside / windows (None: no window)
+    share_outside_by: Mapping[str, float | None]  # per quantity (QUANTITIES): the share leaving it on that one
+    outside_spans_s: tuple[tuple[float, float], ...]  # the start times outside, as spans
+
+    def record(self) -> dict:
+        """``evaluation.json``'s ``envelope.per_flight`` entry."""
+        return {"windows": self.windows, "outside": self.outside, "share_outside": self.share_outside,
+                "share_outside_by": dict(self.share_outside_by),
+                "outside_spans_s": [list(s) for s in self.outside_spans_s]}
+
+
+def check(envelope: Envelope, pieces: list, H: int) -> Outside:
+    """One flight's :class:`Outside`: per piece (``qr.rollout.Windows``) the scored starts outside, pooled."""
     total, counts, times = 0, {k: 0 for k in (*QUANTITIES, "any")}, []
     for w in pieces:
         o = envelope.outside(w, H)
@@ -125,5 +142,4 @@ def check(envelope: Envelope, pieces: list, H: int) -> dict:
             counts[k] += int(o[k].sum())
         times += spans(w.t[w.ok], o["any"])
     share = {k: (counts[k] / total if total else None) for k in counts}
-    return {"windows": total, "outside": counts["any"], "share_outside": share["any"],
-            "share_outside_by": {k: share[k] for k in QUANTITIES}, "outside_spans_s": times}
+    return Outside(total, counts["any"], share["any"], {k: share[k] for k in QUANTITIES}, tuple(map(tuple, times)))

@@ -26,6 +26,7 @@ import pandas as pd
 from .segments import FlightSegments, flight_segments
 
 if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
+    from .conventions import FlightChecks
     from .estimation.crossfit import SegmentEstimate
 
 
@@ -42,7 +43,7 @@ class Flights:
     names: list[str]
     measured: list[pd.DataFrame]
     split: list[FlightSegments]
-    conventions: list[dict]  # per flight: {"flight", "checks": what each check measured}
+    conventions: list[FlightChecks]  # per flight: what each check measured
 
 
 @dataclass(frozen=True)
@@ -79,11 +80,12 @@ def read_flights(paths: Sequence) -> list[pd.DataFrame]:
 
 
 def check_conventions(df: pd.DataFrame, vehicle, path, skip=(), how_to_skip: str = IntakeSettings.how_to_skip,
-                      vehicle_file=None) -> list[dict]:
+                      vehicle_file=None) -> FlightChecks:
     """What each convention check measured; a failed check refuses the log (:func:`qr.conventions.require`)."""
     from . import conventions
 
-    return [r.as_dict() for r in conventions.require(df, vehicle, path, skip, how_to_skip, vehicle_file)]
+    return conventions.FlightChecks(str(path), tuple(conventions.require(df, vehicle, path, skip, how_to_skip,
+                                                                         vehicle_file)))
 
 
 def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: IntakeSettings, vehicle_file=None,
@@ -100,8 +102,7 @@ def take(names: list[str], measured: list[pd.DataFrame], vehicle, settings: Inta
     split, checks = [], []
     for f, m in zip(names, measured):
         fs = flight_segments(m, vehicle, settings.min_segment_s, f)
-        checks.append({"flight": str(f), "checks": check_conventions(m, vehicle, f, settings.skip_checks,
-                                                                     settings.how_to_skip, vehicle_file)})
+        checks.append(check_conventions(m, vehicle, f, settings.skip_checks, settings.how_to_skip, vehicle_file))
         if require is not None:
             require(f, fs)
         split.append(fs)

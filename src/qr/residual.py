@@ -37,6 +37,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -114,7 +115,7 @@ def pack(res: Residual) -> np.ndarray:
 
 # ---- the vehicle file's block ------------------------------------------------------------------
 
-def block(res: Residual, model_file: str, note: str, size: dict | None = None) -> dict:
+def block(res: Residual, model_file: str, note: str, size: Size | None = None) -> dict:
     """The vehicle file's ``residual`` mapping (``model_file``: the .npz, relative to the YAML; ``size``: its
     RMS over the training flights, :func:`rms_size`, which ``qr export`` states where a simulator lacks it)."""
     r = lambda a: [float(f"{x:.17g}") for x in np.asarray(a, float)]  # noqa: E731  (every digit: same model)
@@ -123,26 +124,42 @@ def block(res: Residual, model_file: str, note: str, size: dict | None = None) -
             "layers": res.layers,
             "scaling": {"rotor_speed_scale": float(res.rotor_speed_scale), "input_mean": r(res.input_mean),
                         "input_scale": r(res.input_scale), "output_scale": r(res.output_scale)},
-            **({"size": size} if size is not None else {}),
+            **({"size": size.record()} if size is not None else {}),
             "note": note}
 
 
-def rms_size(res: Residual, v_b, omega, g_b, u, flights) -> dict:
-    """The wrench's RMS (force N, torque N m: of the vector's length and per body axis) over the states
-    ``v_b, omega, g_b`` (N, 3) and rotor speeds ``u`` (N, 4) of the named training ``flights``."""
+@dataclass(frozen=True)
+class Size:
+    """The wrench's RMS over the training flights (force N, torque N m: of the vector's length and per body
+    axis), 6 significant digits: the vehicle file's ``residual.size``."""
+
+    rms_force: float
+    rms_torque: float
+    rms_force_xyz: tuple[float, float, float]
+    rms_torque_xyz: tuple[float, float, float]
+    samples: int
+    flights: tuple[str, ...]
+    OVER: ClassVar[str] = "every sample of the training windows: the filter's estimated states, the rotor speeds acting"
+
+    def record(self) -> dict:
+        return {"rms_force": self.rms_force, "rms_torque": self.rms_torque, "rms_force_xyz": list(self.rms_force_xyz),
+                "rms_torque_xyz": list(self.rms_torque_xyz), "samples": self.samples, "flights": list(self.flights),
+                "over": self.OVER}
+
+
+def rms_size(res: Residual, v_b, omega, g_b, u, flights) -> Size:
+    """The wrench's :class:`Size` over the states ``v_b, omega, g_b`` (N, 3) and rotor speeds ``u`` (N, 4) of the
+    named training ``flights``."""
     w = forward(res, features(res.inputs, v_b, omega, g_b, u, res.rotor_speed_scale))
     rms = lambda a: float(np.sqrt(np.mean(a * a))) if len(a) else 0.0  # noqa: E731
     six = lambda x: float(f"{x:.6g}")  # noqa: E731
-    return {"rms_force": six(rms(np.linalg.norm(w[:, :3], axis=1))),
-            "rms_torque": six(rms(np.linalg.norm(w[:, 3:], axis=1))),
-            "rms_force_xyz": [six(rms(w[:, k])) for k in range(3)],
-            "rms_torque_xyz": [six(rms(w[:, k])) for k in range(3, 6)],
-            "samples": int(len(w)), "flights": [str(f) for f in flights],
-            "over": "every sample of the training windows: the filter's estimated states, the rotor speeds acting"}
+    return Size(six(rms(np.linalg.norm(w[:, :3], axis=1))), six(rms(np.linalg.norm(w[:, 3:], axis=1))),
+                tuple(six(rms(w[:, k])) for k in range(3)), tuple(six(rms(w[:, k])) for k in range(3, 6)),
+                int(len(w)), tuple(str(f) for f in flights))
 
 
 def recorded_size(raw_block) -> dict | None:
-    """The block's ``size`` (:func:`rms_size`) if it is one (a file from before the record has none)."""
+    """The block's ``size`` (:meth:`Size.record`) if it is one (a file from before the record has none)."""
     size = raw_block.get("size") if isinstance(raw_block, dict) else None
     try:
         ok = (all(math.isfinite(float(size[k])) for k in ("rms_force", "rms_torque"))

@@ -41,7 +41,7 @@ def test_a_segment_shorter_than_the_minimum_is_cut_said_and_not_estimated(gapped
     first_estimate = next(i for i, e in enumerate(events) if e.startswith("estimates of"))
     assert events.index("require g.csv: 2 used") < events.index("checked") < first_estimate
     assert any("segment 7.30-8.30 s not used: lasts 1.00 s, shorter than the 1.50 s" in e for e in events)
-    assert taken.flights.conventions[0]["flight"] == "g.csv" and taken.flights.conventions[0]["checks"]
+    assert taken.flights.conventions[0].flight == "g.csv" and taken.flights.conventions[0].checks
 
 
 def test_the_rollout_estimate_is_the_one_qr_evaluate_filters_itself(gapped):

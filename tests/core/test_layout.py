@@ -88,8 +88,8 @@ def test_no_import_cycle_of_any_length():
 
 def test_only_the_stages_and_their_helpers_import_the_stages():
     """Libraries take and return arrays and data frames; the stages (and the CLI, the
-    ``python -m`` entries and the scenarios that run whole diagnoses) call the libraries, not back."""
-    callers_allowed = {"qr.cli", "qr.sim.scenarios"}
+    ``python -m`` entries) call the libraries, not back: the scenarios diagnose through :func:`qr.diagnose.run`."""
+    callers_allowed = {"qr.cli"}
     for name, deps in _imports().items():
         if name.startswith("qr.stages") or name in callers_allowed:
             continue

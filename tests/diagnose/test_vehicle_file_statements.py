@@ -60,18 +60,18 @@ def test_the_conditions_by_hand():
     v = load_vehicle(VEHICLES / "asctec_hummingbird.yaml")
     good = {"thrust_gain": Evidence([1.2], ["mass_error"], ([0.54], [0.57]))}
     said, open_ = coefficient_checks(_effect(0.555), v, "v.yaml", good, hover_ratio=1.8)
-    assert len(said) == 1 and not open_ and "looks x1.8 too large" in said[0]["statement"]
+    assert len(said) == 1 and not open_ and "looks x1.8 too large" in said[0].statement
     # the hover balance contradicts: by the file the rotors give 1.05 m g, a C_T x1/1.8 would make it 1.8
     said, open_ = coefficient_checks(_effect(0.555), v, "v.yaml", good, hover_ratio=1.05)
-    assert not said and "hover balance contradicts" in open_[0]["why"]
+    assert not said and "hover balance contradicts" in open_[0].why
     # collinear with a partner (variance inflation 40): only a combination is fixed
     collinear = {"thrust_gain": Evidence([40.0], ["body_force_bias"], ([0.54], [0.57]))}
     said, open_ = coefficient_checks(_effect(0.555), v, "v.yaml", collinear, hover_ratio=1.8)
-    assert not said and "trades off against body_force_bias" in open_[0]["why"]
+    assert not said and "trades off against body_force_bias" in open_[0].why
     # unstable: one half says x1.8, the other x1.1
     unstable = {"thrust_gain": Evidence([1.2], ["mass_error"], ([0.54], [0.9]))}
     said, open_ = coefficient_checks(_effect(0.555), v, "v.yaml", unstable, hover_ratio=1.8)
-    assert not said and "not the same statement" in open_[0]["why"]
+    assert not said and "not the same statement" in open_[0].why
     # a factor that is not gross is no statement at all
     assert coefficient_checks(_effect(0.9), v, "v.yaml", good, hover_ratio=1.1) == ([], [])
 
@@ -85,17 +85,17 @@ def test_a_factor_a_rate_damping_takes_is_no_statement():
     ytg = [{"name": "yaw_torque_gain", "parameters": {"gain": 0.13}, "stderr": {"gain": 0.01}, "confounded_with": []}]
     damped = {"yaw_torque_gain": Evidence([1.1], ["torque_bias"], ([0.13], [0.14]), [0.98])}
     said, open_ = coefficient_checks(ytg, v, "v.yaml", damped)
-    assert not said and "yaw-rate damping (rotor_drag_moment" in open_[0]["why"] and "x0.98" in open_[0]["why"]
+    assert not said and "yaw-rate damping (rotor_drag_moment" in open_[0].why and "x0.98" in open_[0].why
     real = {"yaw_torque_gain": Evidence([1.1], ["torque_bias"], ([0.13], [0.14]), [0.15])}
     said, open_ = coefficient_checks(ytg, v, "v.yaml", real)
-    assert len(said) == 1 and "C_Q / Jzz" in said[0]["statement"] and not open_
+    assert len(said) == 1 and "C_Q / Jzz" in said[0].statement and not open_
     J = v.inertia
     ie = [{"name": "inertia_error", "parameters": {"dJxx": -0.62 * J[0], "dJyy": 0.0, "dJzz": 0.0},
            "stderr": {"dJxx": 1e-5, "dJyy": 1e-5, "dJzz": 1e-5}, "confounded_with": []}]
     halves = ([-0.62 * J[0], 0.0, 0.0], [-0.6 * J[0], 0.0, 0.0])
     said, open_ = coefficient_checks(ie, v, "v.yaml", {"inertia_error": Evidence([1.0] * 3, [None] * 3, halves,
                                                                                  [-0.15 * J[0], 0.0, 0.0])})
-    assert not said and "rate damping" in open_[0]["why"] and open_[0]["key"] == "inertia[0]"
+    assert not said and "rate damping" in open_[0].why and open_[0].key == "inertia[0]"
     said, _ = coefficient_checks(ie, v, "v.yaml", {"inertia_error": Evidence([1.0] * 3, [None] * 3, halves,
                                                                              [-0.6 * J[0], 0.0, 0.0])})
-    assert len(said) == 1 and "Jxx (inertia[0])" in said[0]["statement"]
+    assert len(said) == 1 and "Jxx (inertia[0])" in said[0].statement

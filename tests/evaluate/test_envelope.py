@@ -49,9 +49,9 @@ def test_the_windows_that_reach_a_sample_beyond_the_envelope_are_flagged_exactly
     assert not o["rate"].any()
     assert o["any"].sum() == 15 + 10 + 11  # the three runs do not overlap
     doc = check(env, [test], H)
-    assert doc["windows"] == 120 and doc["outside"] == 36 and doc["share_outside"] == pytest.approx(36 / 120)
-    assert doc["share_outside_by"]["speed"] == pytest.approx(15 / 120)
-    np.testing.assert_allclose(doc["outside_spans_s"], [[0.30, 0.44], [0.51, 0.60], [0.70, 0.80]])
+    assert doc.windows == 120 and doc.outside == 36 and doc.share_outside == pytest.approx(36 / 120)
+    assert doc.share_outside_by["speed"] == pytest.approx(15 / 120)
+    np.testing.assert_allclose(doc.outside_spans_s, [[0.30, 0.44], [0.51, 0.60], [0.70, 0.80]])
 
 
 def test_a_flight_is_inside_its_own_envelope_and_only_the_covered_samples_build_it():

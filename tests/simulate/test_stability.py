@@ -45,21 +45,21 @@ def test_eq_5_16_pattern_from_a_hand_made_model():
     """W_v = 0 and W_a/m = a rotation-scaled block: eig = {1, 1, 1} ∪ eig(W_a/m), two complex above 1."""
     Wa = M * _rot_block(1.5810, 0.1377, 1.0017)
     an = analyse(np.zeros((3, 3)), Wa, M, DT)
-    lam = an["eigenvalues"]
+    lam = an.eigenvalues
     np.testing.assert_allclose(lam[:2], [1.5810 - 0.1377j, 1.5810 + 0.1377j], atol=1e-12)
     np.testing.assert_allclose(lam[2:], [1.0017, 1.0, 1.0, 1.0], atol=1e-7)  # one eigenvalue of 1 is triple
-    assert an["n_above_one"] == 3 and an["lagged_prediction"] == "diverges"
-    assert an["max_abs_eig"] == pytest.approx(np.hypot(1.5810, 0.1377))
-    assert an["implicit_prediction"] == "unstable"  # m I - W_a has negative eigenvalues: negative mass
+    assert an.n_above_one == 3 and an.lagged_prediction == "diverges"
+    assert an.max_abs_eig == pytest.approx(np.hypot(1.5810, 0.1377))
+    assert an.implicit_prediction == "unstable"  # m I - W_a has negative eigenvalues: negative mass
 
 
 def test_implicit_reading_separates_the_lag_artefact_and_the_leak():
     flip = analyse(np.zeros((3, 3)), -1.3 * M * np.eye(3), M, DT)
-    assert flip["lagged_prediction"] == "diverges" and flip["implicit_prediction"] == "stable"
+    assert flip.lagged_prediction == "diverges" and flip.implicit_prediction == "stable"
     leak = analyse(np.zeros((3, 3)), M * np.eye(3), M, DT)  # W_a = m I: the label identity of eq. 4.34
-    assert leak["lagged_prediction"] == "bounded" and leak["implicit_prediction"] == "ill-posed"
+    assert leak.lagged_prediction == "bounded" and leak.implicit_prediction == "ill-posed"
     small = analyse(np.diag([-0.2, -0.2, -0.1]), 0.3 * M * np.eye(3), M, DT)
-    assert small["n_above_one"] == 0 and small["implicit_prediction"] == "stable"
+    assert small.n_above_one == 0 and small.implicit_prediction == "stable"
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def _model(Wa):
 
 def test_closed_loop_diverges_as_predicted_and_stops_with_a_message(hummingbird, short_traj):
     Wa = hummingbird.mass * _rot_block(1.5810, 0.1377, 1.0017)
-    lam = analyse(np.zeros((3, 3)), Wa, hummingbird.mass, DT)["max_abs_eig"]
+    lam = analyse(np.zeros((3, 3)), Wa, hummingbird.mass, DT).max_abs_eig
     res = fly(short_traj, Plant(hummingbird, [], _model(Wa), "lagged"), None, SimSettings(log_rate=1000.0))
     assert res.status == "diverged" and res.t_end < 0.2
     assert res.message.startswith("diverged at t = ") and "stopped and recorded" in res.message

@@ -11,6 +11,8 @@ motion is a lag or a scale error of one sensor (the accelerometer sits off the C
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
+
 import numpy as np
 import pandas as pd
 
@@ -18,6 +20,26 @@ from ..dynamics import residuals
 from ..flight import ACCEL, on_stamps
 from ..states import ROTORS, signals
 
+
+@dataclass(frozen=True)
+class AccelerometerCheck:
+    """The two force labels, per body axis x, y, z (N): their means and difference, their correlation sample by
+    sample and in ``slow_s`` means (None: a constant label), the RMS of the difference less its mean; the
+    tilt of the motion-capture frame the x/y difference would be."""
+
+    tilt_deg: float
+    samples: int
+    mean_mocap: list[float]
+    mean_accelerometer: list[float]
+    difference: list[float]
+    correlation: list[float | None]
+    correlation_slow: list[float | None]
+    slow_s: float
+    rms_difference: list[float]
+
+    def record(self) -> dict:
+        """``diagnosis.json``'s ``accelerometer_check``."""
+        return asdict(self)
 
 
 def labels(st: pd.DataFrame, meas: pd.DataFrame, vehicle) -> tuple[np.ndarray, np.ndarray]:
@@ -39,7 +61,8 @@ def _corr(a: np.ndarray, b: np.ndarray) -> list:
     return out
 
 
-def accelerometer_check(states_list, measured_list, vehicle, trim_s: float, slow_s: float = 0.25) -> dict | None:
+def accelerometer_check(states_list, measured_list, vehicle, trim_s: float,
+                        slow_s: float = 0.25) -> AccelerometerCheck | None:
     """Per axis: the two labels' means and their difference (N), their correlation sample by sample and
     in ``slow_s`` means, and the RMS of their difference less its mean; the tilt of the motion-capture
     frame the x/y difference would be (``tilt_deg``); None without an accelerometer."""
@@ -66,17 +89,15 @@ def accelerometer_check(states_list, measured_list, vehicle, trim_s: float, slow
     slow = _corr(np.vstack(sm), np.vstack(si)) if sm else [None] * 3
     dx, dy = d[:, 0].mean(), d[:, 1].mean()
     tilt = float(np.degrees(np.arcsin(min(1.0, np.hypot(dx, dy) / (vehicle.mass * 9.81)))))
-    return {"tilt_deg": tilt, "samples": int(len(fm)), "mean_mocap": fm.mean(axis=0).tolist(),
-            "mean_accelerometer": fi.mean(axis=0).tolist(), "difference": d.mean(axis=0).tolist(),
-            "correlation": _corr(fm, fi), "correlation_slow": slow, "slow_s": slow_s,
-            "rms_difference": np.sqrt(((d - d.mean(axis=0)) ** 2).mean(axis=0)).tolist()}
+    return AccelerometerCheck(tilt, int(len(fm)), fm.mean(axis=0).tolist(), fi.mean(axis=0).tolist(),
+                              d.mean(axis=0).tolist(), _corr(fm, fi), slow, slow_s,
+                              np.sqrt(((d - d.mean(axis=0)) ** 2).mean(axis=0)).tolist())
 
 
-def statement(check: dict) -> str:
+def statement(check: AccelerometerCheck) -> str:
     """One sentence for the report: the constant difference read as a tilt of the mocap frame."""
-    tilt = check["tilt_deg"]
     return (f"The accelerometer's force label (m·acc − T) and the motion-capture one differ by a constant "
-            f"({', '.join(f'{1e3 * x:+.1f}' for x in check['difference'])}) mN in body x, y, z: in x and y, "
-            f"a motion-capture frame tilted {tilt:.2f}° against gravity, or an accelerometer bias; what both "
-            f"labels share (correlation in {check['slow_s']:g} s means: "
-            f"{', '.join('–' if c is None else f'{c:.2f}' for c in check['correlation_slow'])}) is the vehicle's.")
+            f"({', '.join(f'{1e3 * x:+.1f}' for x in check.difference)}) mN in body x, y, z: in x and y, "
+            f"a motion-capture frame tilted {check.tilt_deg:.2f}° against gravity, or an accelerometer bias; what "
+            f"both labels share (correlation in {check.slow_s:g} s means: "
+            f"{', '.join('–' if c is None else f'{c:.2f}' for c in check.correlation_slow)}) is the vehicle's.")

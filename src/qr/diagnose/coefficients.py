@@ -143,8 +143,29 @@ def _why_not(name, key, sym, factor, param, ev: Evidence | None, vehicle, hover_
     return None
 
 
+@dataclass(frozen=True)
+class FileFactor:
+    """A vehicle-file number the named effects put off by ``GROSS`` or more: stated (``statement``) or, where
+    the data do not identify it, not (``why``)."""
+
+    key: str  # the vehicle file's key (``inertia[2]``: an element)
+    file_value: float
+    estimate: float  # file_value x factor
+    factor: float
+    factor_stderr: float
+    effect: str  # the named effect that puts it off
+    statement: str | None = None
+    why: str | None = None
+
+    def record(self) -> dict:
+        """``diagnosis.json``'s ``vehicle_file`` (or ``vehicle_file_unresolved``) entry."""
+        return {"key": self.key, "file_value": self.file_value, "estimate": self.estimate, "factor": self.factor,
+                "factor_stderr": self.factor_stderr, "effect": self.effect,
+                **({"why": self.why} if self.why is not None else {"statement": self.statement})}
+
+
 def coefficient_checks(effects: list[dict], vehicle, vehicle_path, evidence_of: dict | None = None,
-                       hover_ratio: float | None = None) -> tuple[list[dict], list[dict]]:
+                       hover_ratio: float | None = None) -> tuple[list[FileFactor], list[FileFactor]]:
     """(statements, unresolved): one statement per vehicle-file number the named effects put off by
     ``GROSS`` or more *and* the data identify; the other gross factors, each with why it is not said."""
     said, unresolved = [], []
@@ -154,10 +175,9 @@ def coefficient_checks(effects: list[dict], vehicle, vehicle_path, evidence_of: 
                 continue
             why = _why_not(e["name"], key, sym, factor, param, (evidence_of or {}).get(e["name"]), vehicle,
                            hover_ratio)
-            entry = {"key": key, "file_value": value, "estimate": value * factor, "factor": factor,
-                     "factor_stderr": se, "effect": e["name"]}
+            entry = (key, value, value * factor, factor, se, e["name"])
             if why:
-                unresolved.append({**entry, "why": f"{sym} ({key}) x{factor:.3g} not stated: {why}"})
+                unresolved.append(FileFactor(*entry, why=f"{sym} ({key}) x{factor:.3g} not stated: {why}"))
                 continue
             x, word = (factor, "small") if factor > 1 else (1 / factor, "large")
             if key == "torque_coeff":  # J_z α_z = C_Q-torque: the data fix the ratio
@@ -173,5 +193,5 @@ def coefficient_checks(effects: list[dict], vehicle, vehicle_path, evidence_of: 
             alike = [c for c in e.get("confounded_with", []) if {e["name"], c} != {"inertia_error", "yaw_torque_gain"}]
             if alike:
                 statement += f" (or, confounded with it: {', '.join(alike)})"
-            said.append({**entry, "statement": statement})
+            said.append(FileFactor(*entry, statement=statement))
     return said, unresolved

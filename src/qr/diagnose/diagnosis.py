@@ -19,10 +19,11 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pandas as pd
 
-from ..config import to_dict
+from ..config import Group, to_dict
 from ..estimation.crossfit import SegmentEstimate
 from ..estimation.settings import resolve as resolve_filter
 from ..flight import hover_ratio
@@ -30,15 +31,18 @@ from ..identification.normal_equations import Columns
 from ..intake import Flights
 from ..rollout import EvaluateConfig
 from ..vehicle import ROTOR_PROPERTIES, Vehicle, vehicle_from_dict
-from .accelerometer import accelerometer_check
-from .coefficients import CHECKED_AGAINST, coefficient_checks, evidence
+from .accelerometer import AccelerometerCheck, accelerometer_check
+from .coefficients import CHECKED_AGAINST, FileFactor, coefficient_checks, evidence
 from .core import block_stats
 from .fit import Fit, NamedEffect, identify
 from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
 from .labels import Labels, make_labels
-from .remainder import TorqueRemainder, fit_torque_remainder, remainder
+from .remainder import Beyond, TorqueRemainder, fit_torque_remainder, remainder
 from .replay import replay_all, rollout_all
 from .settings import DiagnoseConfig
+
+if TYPE_CHECKING:  # (compiled kernels: imported where diagnose.refine=rollout asks for them)
+    from .refine import Refinement
 
 
 @dataclass(frozen=True)
@@ -49,8 +53,8 @@ class Settings:
     diagnose: DiagnoseConfig
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     seed: int = 0
-    given: dict = field(default_factory=dict)  # the config group ``diagnose`` as composed
-    filter: dict = field(default_factory=dict)  # the filter settings the estimates were made with
+    given: Group = field(default_factory=dict)  # the config group ``diagnose`` as composed
+    filter: Group = field(default_factory=dict)  # the filter settings the estimates were made with (checked)
 
     @classmethod
     def of(cls, tree) -> Settings:
@@ -86,14 +90,14 @@ class Diagnosis:
     held_out: HeldOutCheck  # the named model on the held-out part; misfit: the model does not describe it
     replay: dict  # per model (nominal, extended): errors, summary at the horizon, growth
     rollout: dict  # the multi-step rollout from the held-out starts, and the share of the residual explained
-    remainder: dict  # structure beyond the catalog
-    accelerometer: dict | None  # the force label against the accelerometer, where the log has one
-    vehicle_file: list[dict]  # statements about the vehicle file's own numbers, where the data identify them
-    vehicle_file_unresolved: list[dict]  # the gross factors not stated, each with why
+    remainder: Beyond  # structure beyond the catalog
+    accelerometer: AccelerometerCheck | None  # the force label against the accelerometer, where the log has one
+    vehicle_file: list[FileFactor]  # statements about the vehicle file's own numbers, where the data identify them
+    vehicle_file_unresolved: list[FileFactor]  # the gross factors not stated, each with why
     extended_vehicle: Vehicle  # the nominal vehicle plus the named effects (and the torque remainder); the
     # nominal vehicle on a flight the model does not describe
     torque_remainder: TorqueRemainder | None = None  # the learned torque remainder (a hybrid), where asked
-    refinement: object | None = None  # qr.diagnose.refine.Refinement (diagnose.refine=rollout), or None
+    refinement: Refinement | None = None  # diagnose.refine=rollout, else None
     vehicle: Vehicle = field(kw_only=True)  # the nominal vehicle
 
     @property
@@ -107,7 +111,7 @@ class Diagnosis:
     @property
     def verdict(self) -> str:
         """The answer in one paragraph, from the numbers it states."""
-        said = " ".join(c["statement"][0].upper() + c["statement"][1:] + "." for c in self.vehicle_file)
+        said = " ".join(c.statement[0].upper() + c.statement[1:] + "." for c in self.vehicle_file)
         return _verdict(self) + (" " + said if said else "")
 
     def models(self) -> Models:
@@ -139,8 +143,8 @@ def _verdict(d: Diagnosis) -> str:
                 "events no model holds (ground contact, a tether, a crash).")
     if not d.effects:
         rem = d.remainder
-        tail = (f" An unexplained residual remains, correlated with {rem['correlated_with']}."
-                if rem.get("structure_remains") else "")
+        tail = (f" An unexplained residual remains, correlated with {rem.correlated_with}."
+                if rem.structure_remains else "")
         # "up to noise" only when the residual is at the noise floor's level (weighted loss ~ 1)
         fit = ("the nominal model explains this flight up to noise" if h.nominal_loss < 2 else
                "no candidate effect explains the residual, which is well above noise")
@@ -271,7 +275,7 @@ def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[
 
 
 def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,
-                   say) -> tuple[dict, dict, dict | None]:
+                   say) -> tuple[dict, Beyond, AccelerometerCheck | None]:
     """(rollout, structure beyond the catalog, accelerometer check).  The check for structure beyond the
     catalog (numpy) runs beside the rollout (compiled, the GIL released): neither reads what the other
     writes."""

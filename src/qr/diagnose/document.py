@@ -104,7 +104,7 @@ def stated(d: Diagnosis) -> dict:
         "replay": _replay(d),
         "rollout": d.rollout,
         "noise_floor": {**_axes(h.noise_floor_rmse), "source": NOISE_SOURCE},
-        "remainder": d.remainder,
+        "remainder": d.remainder.record(),
         "anatomy": {k: _r(v, 4) for k, v in h.anatomy.items()},
         "selection": _selection(d),
         "verdict": d.verdict,
@@ -114,15 +114,15 @@ def stated(d: Diagnosis) -> dict:
         **({"misfit": {k: float(f"{v:.4g}") for k, v in h.misfit.items()}} if h.misfit else {}),
         "config": d.settings.given,
         "filter": d.settings.filter,
-        "accelerometer_check": d.accelerometer,
+        "accelerometer_check": d.accelerometer.record() if d.accelerometer is not None else None,
         **({"torque_remainder": {"ridge": tr.ridge, "features": FEATURES, "extended_torque_rmse":
                                  tr.extended_torque_rmse, "hybrid_torque_rmse": tr.hybrid_torque_rmse}}
            if tr is not None else {}),
         **segments_json(d.flights.names, d.flights.split),
-        "conventions": d.flights.conventions,
+        "conventions": [c.record() for c in d.flights.conventions],
         **({"refine": d.refinement.to_json()} if d.refinement is not None else {}),
-        "vehicle_file": d.vehicle_file,
-        "vehicle_file_unresolved": d.vehicle_file_unresolved,
+        "vehicle_file": [c.record() for c in d.vehicle_file],
+        "vehicle_file_unresolved": [c.record() for c in d.vehicle_file_unresolved],
     }
 
 

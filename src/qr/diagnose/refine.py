@@ -54,6 +54,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numba as nb
 import numpy as np
@@ -65,6 +66,9 @@ from ..linalg_compiled import cholesky_solve
 from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, BandsConfig, Windows, roll_window, score_plant, summary, pool, at
 from ..plant_state import N_RB, P_DELAY, P_J, P_MARKER, P_MASS, X_POS, X_QUAT, X_RATE, X_VEL
 from ..sim.plant import cg_from_tracked, plant_accels, tracked_point, true_params
+
+if TYPE_CHECKING:
+    from ..bands import Scale
 
 # the vehicle's own coefficients as catalog effects (their neutral value: the vehicle file's)
 COEFFICIENTS = ("inertia_error", "thrust_gain", "yaw_torque_gain", "actuator_delay", "motor_imbalance", "cg_offset")
@@ -202,7 +206,7 @@ class Refinement:
     # the sandwich covariance (parameter units) of the parameters off their bounds at the rollout's optimum:
     # (their indices into ``parameters``, the matrix); the Monte Carlo band's draws (qr.bands)
     covariance: tuple | None = None
-    band_scale: dict | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
+    band_scale: Scale | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
 
     def properties(self) -> dict:
         """The vehicle keys refined (only those that moved): ``rotor_inertia``, ``rotor_torque_gains``,

@@ -16,6 +16,7 @@ shared noise).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,12 +35,33 @@ def _left(f: Fit, vehicle, rows: np.ndarray) -> np.ndarray:
     return prep.y[rows] - extended_prediction(prep, vehicle, f.named, f.theta, rows, f.force_only)
 
 
-def remainder(f: Fit, vehicle, cfg: DiagnoseConfig) -> dict:
+@dataclass(frozen=True)
+class Beyond:
+    """Structure beyond the catalog: how much of the held-out residual the named effects leave a linear model
+    of the states removes (all input groups, and each alone), and the group it is most correlated with."""
+
+    evaluated: bool
+    statement: str
+    structure_remains: bool = False
+    held_out_gain: float | None = None
+    by_input_group: Mapping[str, float] | None = None  # input group (diagnose.remainder_inputs) -> gain alone
+    correlated_with: str | None = None  # where structure remains
+
+    def record(self) -> dict:
+        """``diagnosis.json``'s ``remainder``."""
+        if not self.evaluated:
+            return {"evaluated": False, "statement": self.statement}
+        return {"evaluated": True, "structure_remains": self.structure_remains, "held_out_gain": self.held_out_gain,
+                "by_input_group": dict(self.by_input_group), "correlated_with": self.correlated_with,
+                "statement": self.statement}
+
+
+def remainder(f: Fit, vehicle, cfg: DiagnoseConfig) -> Beyond:
     try:
         from ..datasets import features
         from ..models import fit
     except ImportError:
-        return {"evaluated": False, "statement": "Not evaluated: the learning stage (qr.models) is not installed."}
+        return Beyond(False, "Not evaluated: the learning stage (qr.models) is not installed.")
     prep = f.labels.cross
     tr, te = np.flatnonzero(prep.train), np.flatnonzero(prep.test)
     s_tr, s_te = prep.s.take(tr), prep.s.take(te)
@@ -64,9 +86,8 @@ def remainder(f: Fit, vehicle, cfg: DiagnoseConfig) -> dict:
                  f"No structure left: a linear model on {', '.join(cfg.remainder_inputs)} removes only "
                  f"{100 * g_all:.1f} % of the remaining held-out residual variance (threshold "
                  f"{100 * cfg.remainder_min_gain:.0f} %).")
-    return {"evaluated": True, "structure_remains": bool(remains), "held_out_gain": round(g_all, 4),
-            "by_input_group": {k: round(v, 4) for k, v in per_group.items()},
-            "correlated_with": top if remains else None, "statement": statement}
+    return Beyond(True, statement, bool(remains), round(g_all, 4), {k: round(v, 4) for k, v in per_group.items()},
+                  top if remains else None)
 
 
 @dataclass(frozen=True)

@@ -188,7 +188,7 @@ def _rejected(doc: dict) -> list[str]:
 
 
 def _beyond(d: Diagnosis) -> list[str]:
-    return ["## Beyond the catalog\n", d.remainder.get("statement", ""), ""] if d.remainder else []
+    return ["## Beyond the catalog\n", d.remainder.statement, ""]
 
 
 def _replay(doc: dict) -> list[str]:

@@ -37,10 +37,10 @@ def document(e) -> dict:
 def envelope_block(ec) -> dict:
     """``envelope``: the training flights' extremes, and per scored flight and pooled the windows outside them."""
     outside = ec.outside
-    n = sum(o["windows"] for o in outside.values())
-    k = {q: sum(o["share_outside_by"][q] * o["windows"] for o in outside.values() if o["windows"]) for q in QUANTITIES}
-    m = sum(o["outside"] for o in outside.values())
+    n = sum(o.windows for o in outside.values())
+    k = {q: sum(o.share_outside_by[q] * o.windows for o in outside.values() if o.windows) for q in QUANTITIES}
+    m = sum(o.outside for o in outside.values())
     return {"trained_on": list(ec.trained_on), "limits": ec.envelope.to_dict(), "windows": n, "outside": m,
             "share_outside": m / n if n else None,
             "share_outside_by": {q: (round(k[q]) / n if n else None) for q in QUANTITIES},
-            "per_flight": outside}
+            "per_flight": {f: o.record() for f, o in outside.items()}}

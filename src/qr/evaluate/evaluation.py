@@ -11,6 +11,7 @@ filter stage's estimate) is scored for the references ``hold`` and ``rate_frozen
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,8 +19,8 @@ import pandas as pd
 
 from .. import rollout
 from ..bands import Bands, BandSet
-from ..config import to_dict
-from ..envelope import Envelope, check
+from ..config import Group, to_dict
+from ..envelope import Envelope, Outside, check
 from ..errors import QrInputError
 from ..estimation.settings import resolve as resolve_filter
 from ..holdout import Assignment, assign
@@ -37,8 +38,8 @@ class Settings:
     filter settings the estimates were made with (both recorded in ``evaluation.json``)."""
 
     evaluate: EvaluateConfig
-    given: dict
-    filter: dict
+    given: Group
+    filter: Group
 
     @classmethod
     def of(cls, tree) -> Settings:
@@ -76,7 +77,7 @@ class EnvelopeCheck:
 
     envelope: Envelope
     trained_on: tuple[str, ...]
-    outside: dict[str, dict]
+    outside: Mapping[str, Outside]  # per scored flight (a path: keyed by data)
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+
+
+class Track(NamedTuple):
+    """A flight at the pose stamps (logged or simulated; NaN where it has nothing): position (n, 3), attitude
+    quaternion (n, 4), rotor speeds (n, 4), collective thrust (n,)."""
+
+    p: np.ndarray
+    q: np.ndarray
+    u: np.ndarray
+    thrust: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -61,20 +72,19 @@ def _first_above(t, e, threshold, t0):
     return float(t[above[0]] - t0) if len(above) else None
 
 
-def compare(t, t0, logged: dict, simulated: dict, part_position_m: float, part_attitude_deg: float,
+def compare(t, t0, logged: Track, simulated: Track, part_position_m: float, part_attitude_deg: float,
             diverged_at_s=None) -> Errors:
-    """Errors of ``simulated`` against ``logged`` (dicts of ``p`` (n, 3), ``q`` (n, 4), ``u`` (n, 4),
-    ``thrust`` (n,) at stamps ``t``; NaN where a side has nothing), ``t0`` the replay's start."""
-    ep = np.linalg.norm(simulated["p"] - logged["p"], axis=1)
-    dot = np.abs(np.sum(simulated["q"] * logged["q"], axis=1)) / (
-        np.linalg.norm(simulated["q"], axis=1) * np.linalg.norm(logged["q"], axis=1))
+    """Errors of ``simulated`` against ``logged`` at stamps ``t``, ``t0`` the replay's start."""
+    ep = np.linalg.norm(simulated.p - logged.p, axis=1)
+    dot = np.abs(np.sum(simulated.q * logged.q, axis=1)) / (
+        np.linalg.norm(simulated.q, axis=1) * np.linalg.norm(logged.q, axis=1))
     ea = np.degrees(2.0 * np.arccos(np.clip(dot, 0.0, 1.0)))
     ok = np.isfinite(ep) & np.isfinite(ea)
-    eu = simulated["u"] - logged["u"]
+    eu = simulated.u - logged.u
     uok = np.isfinite(eu)
-    et = simulated["thrust"] - logged["thrust"]
+    et = simulated.thrust - logged.thrust
     tok = np.isfinite(et)
-    lu = logged["u"][np.isfinite(logged["u"]) & np.isfinite(simulated["u"])]
+    lu = logged.u[np.isfinite(logged.u) & np.isfinite(simulated.u)]
     return Errors(
         n=int(ok.sum()), position_sse=float(np.sum(ep[ok] ** 2)), position_max=float(np.max(ep[ok], initial=-np.inf)),
         position_parts_at=_first_above(t[ok], ep[ok], part_position_m, t0),

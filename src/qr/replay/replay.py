@@ -20,7 +20,7 @@ import numpy as np
 from ..errors import QrInputError
 from ..flight import POSITION, QUATERNION, ROTORS
 from .alignment import Alignment, from_position, from_thrust
-from .compare import Errors, compare, pool
+from .compare import Errors, Track, compare, pool
 from .controller import Controller, ControllerRecord
 from .fly import Actuation, fly, initial_state
 from .logs import COMMANDS, ReplayLog
@@ -67,7 +67,7 @@ class FlightReplay:
     path: str
     setup: Setup
     t: np.ndarray  # the pose stamps inside the window
-    logged: dict  # p, q, u, thrust at t
+    logged: Track  # at t
     models: tuple[ModelFlight, ...]  # one per vehicle
 
 
@@ -218,9 +218,9 @@ def fly_all(log: ReplayLog, setup: Setup, vehicles, vehicle_files, labels, contr
     tl = log.pose["t"].to_numpy(float)
     inside = (tl >= t0 - 1e-9) & (tl <= t1 + 1e-9)
     t = tl[inside]
-    logged = {"p": log.pose[POSITION].to_numpy(float)[inside], "q": log.pose[QUATERNION].to_numpy(float)[inside],
-              "u": log.pose[ROTORS].to_numpy(float)[inside]}
-    logged["thrust"] = _logged_thrust(log, setup, t, logged["u"], vehicles[0])
+    u = log.pose[ROTORS].to_numpy(float)[inside]
+    logged = Track(log.pose[POSITION].to_numpy(float)[inside], log.pose[QUATERNION].to_numpy(float)[inside], u,
+                   _logged_thrust(log, setup, t, u, vehicles[0]))
     pos = (tl, log.pose[POSITION].to_numpy(float))
     models = []
     for veh, path, label in zip(vehicles, vehicle_files, labels):
@@ -230,7 +230,7 @@ def fly_all(log: ReplayLog, setup: Setup, vehicles, vehicle_files, labels, contr
                     setup.sim_rate_hz, pos, settings.max_error_m, 0.0 if log.synth else settings.settle_s)
         sim = _sampled(flown, t, setup, vehicles[0])
         err = compare(t, t0, logged, sim, settings.part_position_m, settings.part_attitude_deg, flown.diverged_at_s)
-        models.append(ModelFlight(label, str(path), err, sim["p"], sim["q"], sim["u"], sim["thrust"]))
+        models.append(ModelFlight(label, str(path), err, *sim))
     return FlightReplay(log.name, log.path, setup, t, logged, tuple(models))
 
 
@@ -241,7 +241,7 @@ def _logged_thrust(log, setup: Setup, t, u, first_vehicle) -> np.ndarray:
     return first_vehicle.thrust_coeff * np.sum(u ** 2, axis=1)
 
 
-def _sampled(flown, t, setup: Setup, first_vehicle) -> dict:
+def _sampled(flown, t, setup: Setup, first_vehicle) -> Track:
     """The simulation at the stamps ``t`` (linear between its steps; NaN after it ended)."""
     end = flown.t[-1] if len(flown.t) else -np.inf
     keep = t <= end + 1e-12
@@ -259,7 +259,7 @@ def _sampled(flown, t, setup: Setup, first_vehicle) -> dict:
         thrust = interp(setup.actuation.mixer.thrust_of(flown.duties, setup.actuation.vbat)[:, None])[:, 0]
     else:
         thrust = first_vehicle.thrust_coeff * np.sum(u ** 2, axis=1)
-    return {"p": interp(flown.p), "q": q, "u": u, "thrust": thrust}
+    return Track(interp(flown.p), q, u, thrust)
 
 
 def unknowns(flights, vehicles, settings: ReplaySettings) -> list[str]:

@@ -121,13 +121,13 @@ def flight_figure(flight, controller: str, unit: str, path) -> None:
     az = fig.add_subplot(gs[:, 1])
     au = [fig.add_subplot(gs[i, 2]) for i in range(4)]
     sp = flight.setup.setpoints.at(flight.t, order=0)["p"]
-    lp = flight.logged["p"]
+    lp = flight.logged.p
     axy.plot(sp[:, 0], sp[:, 1], color="0.6", ls="--", lw=1, label="setpoint")
     axy.plot(lp[:, 0], lp[:, 1], color="k", lw=1.4, label="logged")
     az.plot(t, sp[:, 2], color="0.6", ls="--", lw=1)
     az.plot(t, lp[:, 2], color="k", lw=1.4)
     for i in range(4):
-        au[i].plot(t, flight.logged["u"][:, i], color="k", lw=1.0)
+        au[i].plot(t, flight.logged.u[:, i], color="k", lw=1.0)
     for k, m in enumerate(flight.models):
         c = f"C{k}"
         axy.plot(m.p[:, 0], m.p[:, 1], color=c, lw=1.1, label=m.label)

@@ -46,7 +46,7 @@ def document(r: ResidualTraining) -> dict:
                                   "rate_frozen": "the benchmark's physics baseline (qr evaluate's reference)"}},
         "config": r.settings.given,
         "software": {"torch": torch.__version__, "threads": 1},
-        "residual_size": r.size,
+        "residual_size": r.size.record(),
         **({"ensemble": {
             "members": rcfg.members, "file": BANDS_FILE, "scale": r.ensemble.scale,
             "scale_horizon": r.settings.evaluate.horizon, "calibrated_on": r.ensemble.calibrated_on,

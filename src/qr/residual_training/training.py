@@ -5,19 +5,23 @@ from __future__ import annotations
 import time
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .. import holdout
 from .. import residual_fit as rf
-from ..config import to_dict
+from ..config import Group, to_dict
 from ..ensemble import Member
 from ..errors import QrInputError
 from ..flightsets import FlightInfo
-from ..residual import Residual
+from ..residual import Residual, Size
 from ..rollout import QUANTITIES, EvaluateConfig
 from ..vehicle import Vehicle
 from .sentences import kept_sentence, split_sentence
+
+if TYPE_CHECKING:
+    from ..bands import Scale
 
 COMMAND_KEYS = ("flights", "vehicle", "out", "force")  # learn.* keys of the command line, not settings
 
@@ -30,8 +34,8 @@ class Settings:
     learn: rf.ResidualConfig
     evaluate: EvaluateConfig
     seed: int
-    filter: dict  # the filter settings the estimates are made with (a plain ``filter`` group)
-    given: dict  # learn (less the command line's keys), evaluate and filter as composed
+    filter: Group  # the filter settings the estimates are made with (checked)
+    given: Group  # learn (less the command line's keys), evaluate and filter as composed
 
     @classmethod
     def of(cls, tree, split: holdout.SplitConfig | None = None) -> Settings:
@@ -98,7 +102,7 @@ class Ensemble:
     """The band's members, each fine-tuned from the network on a resample of the training flights."""
 
     members: tuple[Member, ...]
-    scale: dict | None  # the band's scale per signal (qr.bands.calibrate), None without validation windows
+    scale: Scale | None  # the band's scale per signal (qr.bands.calibrate), None without validation windows
     calibrated_on: str
     wall_s: float
     jobs: int  # processes that trained them
@@ -117,7 +121,7 @@ class ResidualTraining:
     physical: Vehicle  # the vehicle without a residual
     residual: Residual  # the trained network
     validation: Validation
-    size: dict  # the wrench's RMS over the training windows (qr.residual.rms_size)
+    size: Size  # the wrench's RMS over the training windows
     estimate_s: float  # wall time of the flights' estimates
     ensemble: Ensemble | None
 
@@ -222,7 +226,7 @@ def _ensemble(settings: Settings, physical: Vehicle, hybrid: Vehicle, parts: lis
     return Ensemble(tuple(members), scale, where, time.perf_counter() - t1, jobs)
 
 
-def training_size(res: Residual, parts: list, H: int, vehicle: Vehicle) -> dict:
+def training_size(res: Residual, parts: list, H: int, vehicle: Vehicle) -> Size:
     """The trained wrench's RMS over every sample of the training windows (:func:`qr.residual.rms_size`): the
     size ``qr export`` states where a simulator has no place for the network.  States are the filter's
     estimates moved from the tracked point to the CG; rotor speeds those acting there (delay applied)."""

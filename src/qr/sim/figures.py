@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from ..report.figures import save, subplots
+from .stability import Analysis
 from .study import euler_angles
 
 STYLE = {"nominal": ("tab:red", "-"), "compensated": ("tab:blue", "-"), "oracle": ("tab:green", "--")}
@@ -77,14 +80,14 @@ def rmse_figure(table, path) -> None:
     save(fig, path)
 
 
-def eigenvalue_figure(analyses: dict, path) -> None:
+def eigenvalue_figure(analyses: Mapping[str, Analysis], path) -> None:
     """Eigenvalues of M_{v,a} (eq. 5.15) per model against the unit circle."""
     fig, ax = subplots(figsize=(5.5, 5))
     th = np.linspace(0, 2 * np.pi, 400)
     ax.plot(np.cos(th), np.sin(th), "k-", lw=0.8, label="|λ| = 1")
     markers = "osd^v<>p*h"
     for i, (name, an) in enumerate(analyses.items()):
-        lam = an["eigenvalues"]
+        lam = an.eigenvalues
         ax.scatter(lam.real, lam.imag, marker=markers[i % len(markers)], s=40, alpha=0.8, label=name)
     ax.set_aspect("equal")
     ax.set_xlabel("Re λ (dimensionless)")

@@ -210,11 +210,16 @@ def noise_of(sc: Scenario):
 
 
 def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float = 100.0, overrides=()) -> dict:
-    """Fly scenario ``sc`` (parameters drawn) as a synthetic flight in ``folder``/s, diagnose it into
-    ``folder``/d; the diagnosis document."""
+    """Fly scenario ``sc`` (parameters drawn) as a synthetic flight in ``folder``/s and diagnose it in memory
+    (:func:`qr.diagnose.run`, as ``qr diagnose`` does, nothing written); the diagnosis document."""
     from pathlib import Path
 
-    from ..stages.diagnose import run_diagnosis
+    from ..config import compose_stage
+    from ..diagnose.diagnosis import Settings, run
+    from ..diagnose.document import document
+    from ..diagnose.flights import intake_settings, length_check
+    from ..intake import read_flights, take
+    from ..parallel import blas_one_thread
     from ..vehicle import load_vehicle
     from .synth import SynthConfig, write_synth
     from .trajectory import TrajectoryConfig
@@ -228,8 +233,14 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
                             low_height=sc.low_height or TrajectoryConfig().low_height)
     write_synth(folder / "s", vehicle, sc.effects, SynthConfig(duration=duration, rate=rate, seed=sc.seed,
                                                               noise=noise_of(sc), trajectory=traj))
-    return run_diagnosis([folder / "s" / "flight.csv"], folder / "s" / "vehicle.yaml", folder / "d", list(overrides),
-                         log=lambda m: None, figures=False)
+    flight, vehicle_file = folder / "s" / "flight.csv", folder / "s" / "vehicle.yaml"
+    with blas_one_thread():  # as the stage runs it: the same numbers
+        nominal = load_vehicle(vehicle_file)
+        settings = Settings.of(compose_stage(list(overrides), "diagnose", "diagnose.horizon_s=2"))
+        taken = take([str(flight)], read_flights([flight]), nominal,
+                     intake_settings(settings.diagnose, settings.filter), vehicle_file,
+                     require=length_check(settings.diagnose, 1))
+        return document(run(list(taken.estimates), taken.flights, nominal, settings, vehicle_file))
 
 
 def coverage_cases(family: str, n: int, seed: int = 0) -> list[Scenario]:

@@ -13,14 +13,15 @@ from __future__ import annotations
 
 import logging
 import sys
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable
 
 import pandas as pd
 
 from ..errors import QrInputError
 from ..vehicle import load_vehicle
 from .bezier import from_config as trajectory_from_config
+from .stability import Analysis
 from .specs import build_force, build_source, check_spec, enabled, no_leak, settings
 from .study import ORACLE, Plant, SimSettings, fly
 
@@ -65,7 +66,7 @@ class StabilityStudy:
     (:func:`qr.sim.stability.analyse`) and its loops (lagged, implicit)."""
 
     table: pd.DataFrame
-    analyses: dict[str, dict]
+    analyses: Mapping[str, Analysis]  # model name -> its eigen-analysis
     loops: tuple[Loop, ...]
     max_accel_g: float  # the divergence limit
 
@@ -197,11 +198,11 @@ def stability_study(sim: dict, child=None, progress: bool = True) -> StabilitySt
         an = analyse(linear.block("v_b"), linear.block("a_b"), mass, dt)
         analyses[name] = an
         row = {"model": name, "inputs": ",".join(linear.inputs), "mass_kg": mass, "dt_s": dt,
-               "eigenvalues": format_eigs(an["eigenvalues"]), "max_abs_eig": an["max_abs_eig"],
-               "n_above_one": an["n_above_one"], "lagged_prediction": an["lagged_prediction"],
-               "a_block_eigs": format_eigs(an["a_block_eigs"]),
-               "effective_mass_min_real": an["effective_mass_min_real"],
-               "implicit_prediction": an["implicit_prediction"]}
+               "eigenvalues": format_eigs(an.eigenvalues), "max_abs_eig": an.max_abs_eig,
+               "n_above_one": an.n_above_one, "lagged_prediction": an.lagged_prediction,
+               "a_block_eigs": format_eigs(an.a_block_eigs),
+               "effective_mass_min_real": an.effective_mass_min_real,
+               "implicit_prediction": an.implicit_prediction}
         for mode in ("lagged", "implicit"):
             res = fly(traj, Plant(plant_vehicle, [], linear, mode), None, step_settings)
             f = res.log[["f_true_x", "f_true_y", "f_true_z"]].to_numpy()
@@ -213,7 +214,7 @@ def stability_study(sim: dict, child=None, progress: bool = True) -> StabilitySt
                 log.warning("%s (%s): %s", name, mode, res.message)
             loops.append(Loop((name, mode), {"model": name, "mode": mode, "spec": spec},
                               {"status": res.status, "t_end_s": res.t_end, "rmse": res.metrics()["rmse"],
-                               "max_abs_eig": an["max_abs_eig"]}, res.log))
+                               "max_abs_eig": an.max_abs_eig}, res.log))
             if child:
                 child(loops[-1])
         rows.append(row)

@@ -32,6 +32,8 @@ runs both closed loops.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 UNSTABLE_TOL = 1e-9  # |λ| above 1 + this counts as unstable (numerical round-off only)
@@ -51,7 +53,20 @@ def eigenvalues(W_v, W_a, mass: float, dt: float) -> np.ndarray:
     return lam[order]
 
 
-def analyse(W_v, W_a, mass: float, dt: float) -> dict:
+@dataclass(frozen=True)
+class Analysis:
+    """One a_b-input model's eigen-analysis at hover (eq. 5.15) and its implicit (physical) reading."""
+
+    eigenvalues: np.ndarray  # of M_{v,a}
+    max_abs_eig: float
+    n_above_one: int
+    lagged_prediction: str  # diverges | bounded
+    a_block_eigs: np.ndarray  # of W_a / m
+    effective_mass_min_real: float  # of m I - W_a
+    implicit_prediction: str  # stable | unstable | ill-posed
+
+
+def analyse(W_v, W_a, mass: float, dt: float) -> Analysis:
     """Eigenvalues, the |λ| > 1 flags, and the implicit (physical) reading."""
     lam = eigenvalues(W_v, W_a, mass, dt)
     n_above = int(np.sum(np.abs(lam) > 1.0 + UNSTABLE_TOL))
@@ -63,15 +78,8 @@ def analyse(W_v, W_a, mass: float, dt: float) -> dict:
         implicit = "unstable"
     else:
         implicit = "stable"
-    return {
-        "eigenvalues": lam,
-        "max_abs_eig": float(np.abs(lam).max()),
-        "n_above_one": n_above,
-        "lagged_prediction": "diverges" if n_above else "bounded",
-        "a_block_eigs": a_eigs,
-        "effective_mass_min_real": float(m_eff.real.min()),
-        "implicit_prediction": implicit,
-    }
+    return Analysis(lam, float(np.abs(lam).max()), n_above, "diverges" if n_above else "bounded", a_eigs,
+                    float(m_eff.real.min()), implicit)
 
 
 def format_eigs(lam) -> str:
