@@ -20,23 +20,12 @@ import torch
 
 from .frames import G
 from .residual import GROUPS, ORDER
-from .plant_state import (N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_FLAP, P_FLAP_PITCH, P_GE, P_GZ, P_HUB, P_J, P_LIN,
+from .plant_state import (P_B, P_BBIAS, P_CG, P_CQGAIN, P_FLAP, P_FLAP_PITCH, P_GE, P_GZ, P_HUB, P_J, P_LIN,
                           P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_ROTOR_J, P_SCALE, P_TBIAS,
                           P_TLIFT, P_UHOVER, P_WIND, P_YAW_GAIN, STATE_PARTS, X_POS, X_QUAT, X_RATE, X_VEL)
 from .sim.plant import MIN_GROUND_HEIGHT
 
 DTYPE = torch.float64
-
-
-def place(P0, *values) -> torch.Tensor:
-    """``P0`` (the plant's vector) as a tensor with ``values`` (pairs of a slot of :mod:`qr.plant_state` and a
-    tensor) put at their slots, differentiably: e.g. ``(P_J, J), (P_SCALE, c_t / c_t0 * ones(4)), (P_CQGAIN, k)``."""
-    P = torch.as_tensor(np.asarray(P0, float)[:N_P], dtype=DTYPE).clone()
-    for slot, v in values:
-        i = slot.start if isinstance(slot, slice) else slot
-        v = torch.as_tensor(v, dtype=DTYPE).reshape(-1)
-        P = torch.cat([P[:i], v, P[i + len(v):]])
-    return P
 
 
 def body_features(inputs, v_b, w, g_b, u, speed_scale: float) -> torch.Tensor:
@@ -408,17 +397,3 @@ def window_errors(pred: torch.Tensor, tp, tq, tv, tw) -> torch.Tensor:
     E = torch.stack([_norm(pred[..., X_POS] - tp), _norm(pred[..., X_VEL] - tv),
                      2.0 * torch.acos(torch.clamp(d, max=1.0)), _norm(pred[..., X_RATE] - tw)], -1)
     return torch.where(present, E, torch.full_like(E, float("nan")))
-
-
-def delayed_inputs(t: np.ndarray, U: np.ndarray, d: torch.Tensor) -> torch.Tensor:
-    """The rotor speeds acting at each stamp for a delay ``d`` (s), differentiably in ``d``
-    (``np.interp(t − d, t, U)``, as :meth:`qr.rollout.Windows.inputs`)."""
-    Ut = torch.as_tensor(U, dtype=DTYPE)
-    if float(d.detach()) <= 0:
-        return Ut
-    s = torch.as_tensor(np.array(t, float), dtype=DTYPE) - d
-    k = np.clip(np.searchsorted(t, s.detach().numpy(), side="right") - 1, 0, len(t) - 2)
-    t0, t1 = torch.as_tensor(t[k], dtype=DTYPE), torch.as_tensor(t[k + 1], dtype=DTYPE)
-    f = torch.clamp((s - t0) / (t1 - t0), 0.0, 1.0)[:, None]
-    return (1 - f) * Ut[k] + f * Ut[k + 1]
-

@@ -71,10 +71,6 @@ class CrazyflieMixer:
     thrust_to_torque: float
     pwm: PwmModel
 
-    def forces(self, thrust, torque) -> np.ndarray:
-        """Per-motor forces (N, before clipping) of collective thrust (N) and torques (N m): (…, 4)."""
-        return _forces(float(thrust), np.asarray(torque, float), self.arm_length, self.thrust_to_torque)
-
     def duties(self, thrust, torque, vbat: float = 0.0) -> np.ndarray:
         return _duties(float(thrust), np.asarray(torque, float), self.arm_length, self.thrust_to_torque,
                        self.pwm.vector(), float(vbat))
@@ -160,9 +156,3 @@ def fit_motor_map(t, duties, speeds, tau_s: float) -> MotorMap:
         res.append(speeds[ok, i] - A @ c)
     rms = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
     return MotorMap("fit", tuple(a), tuple(b), rms, float(tau_s))
-
-
-def mixer_from_dict(d: dict) -> CrazyflieMixer:
-    pwm = d["pwm"]
-    return CrazyflieMixer(float(d["arm_length"]), float(d["thrust_to_torque"]),
-                          PwmModel(**{k: float(v) for k, v in pwm.items()}))
