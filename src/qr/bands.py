@@ -325,8 +325,8 @@ def read_source(doc: dict, file: str, base: Path) -> Source:
 
 
 def source_of(vehicle_file, vehicle) -> tuple[Source | None, str]:
-    """The band source of a vehicle file (see the module doc) and, where there is none or it does not fit the
-    file, why."""
+    """The band source of a vehicle file ``X.yaml``: ``X.bands.json`` beside it, else the ``refine`` block of the
+    ``diagnosis.json`` beside an ``extended_vehicle.yaml``; where there is none or it does not fit, why."""
     path = Path(str(vehicle_file))
     side = path.with_name(path.stem + SUFFIX)
     doc, file = None, None

@@ -1,16 +1,9 @@
 """The rollout's differentiable twin (torch, float64): the same plant, step and errors as :mod:`qr.rollout`.
 
-The compiled plant (:mod:`qr.sim.plant`) with the parameter vector ``P`` in its own layout: the
-rigid-body derivative with the rotor map (per-rotor thrust scale: C_T; yaw-torque gain: C_Q), every
-catalog effect, the learned torque remainder, and a learned wrench — here any torch module taking the
-features of :mod:`qr.residual` — RK4 over each window's own steps with the measured rotor speeds held
-(zero-order hold, the actuator delay applied to the input), the quaternion renormalised, the tracked
-point (marker offset) in and out.  ``tests/learn/test_rollout_torch.py`` holds it equal to the compiled
-plant to 1e-9 on random states and inputs, for the nominal vehicle and with every catalog effect.
-
-Everything is differentiable in ``P`` (so in J, C_T, C_Q and the effects' parameters: :func:`place`
-puts tensors at their slots) and in the residual's weights; :func:`window_errors` returns the per-step
-errors of a batch of windows, the quantities ``qr evaluate`` averages.
+The compiled plant (:mod:`qr.sim.plant`) with the parameter vector ``P`` in its own layout, a learned wrench
+(any torch module taking :mod:`qr.residual`'s features), RK4 over each window's own steps; differentiable in
+``P`` and in the weights; :func:`window_errors` gives the per-step errors ``qr evaluate`` averages.  Held equal
+to the compiled plant by ``tests/learn/test_rollout_torch.py``; docs/learn.md "The differentiable plant".
 """
 
 from __future__ import annotations

@@ -704,16 +704,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     estimates) and the vehicle's coefficients on the ``train`` windows by the rollout's error; score the
     equation-error and the refined model on ``held_out``.  ``rotor_noise``: per training piece, the rotor
     speeds' noise (measured less filtered; None: no errors-in-variables correction); ``seed``: its
-    realisation (see the module doc).
-
-    Two fits.  The first moves every parameter within its plausible bounds: what the rollout wants, with
-    standard errors.  The written model is a second fit, within the physical ranges: a parameter the
-    rollout wants outside its physical range or on a plausible bound (it wants beyond it), or a named
-    effect's parameter the rollout wants beyond its standard errors from the one-step estimate (the
-    one-step fit measures that force or torque sample by sample; the rollout moving it is compensation for
-    what the model lacks, said in the report), is held at its one-step value, the others fitted again.  If
-    the written model does not lower the training loss below the one-step model's, the one-step model is
-    written."""
+    realisation.  Two fits: what the rollout wants within the plausible bounds, then the written model within
+    the physical ranges (docs/diagnose.md "Refinement by simulation error", "What is written")."""
     t0 = time.perf_counter()
     H = settings.horizon
     specs, why = _specs(vehicle, effects, settings)
