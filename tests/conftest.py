@@ -133,3 +133,12 @@ def on_the_ground(flight, vehicle, before_s=5.0, after_s=5.0, spin_up_s=0.0, rat
     air = flight.assign(t=(flight["t"] - flight["t"].iloc[0] + before_s).round(6))
     idle = ground_rows(int(after_s * rate), p1, 0.2 * vehicle.hover_speed, air["t"].iloc[-1] + 1 / rate, 2, rate)
     return pd.concat([off, up, air, idle], ignore_index=True), (before_s, float(air["t"].iloc[-1]))
+
+
+def run_with_overrides(flight, vehicle_file, out, nis_out, overrides=(), name=None, track=True, crossfit_out=None):
+    """The filter stage from Python with Hydra overrides (``['filter=auto']``)."""
+    from qr.config import compose, to_dict
+    from qr.stages.filter import run_filter
+
+    return run_filter(flight, vehicle_file, out, nis_out, to_dict(compose(list(overrides)))["filter"], name,
+                      track=track, crossfit_out=crossfit_out)

@@ -1,19 +1,9 @@
 """Where a log is airborne: the rows a rigid-body model of free flight may explain.
 
-Real logs start and end on the ground (motors off, idling, spinning up): there the
-floor carries part of the weight, and a residual ``m a - m Rᵀg - T`` of up to
-``m g`` would be read as an effect.  A row is on the ground when
-
-- the rotor-map thrust ``T(u)`` is low (below ``THRUST_OFF`` of ``m g``, back on
-  above ``THRUST_ON``: hysteresis; median over ``SMOOTH_S`` so one bad sample or a
-  dropout does not decide), unless the vehicle keeps moving through a dip shorter
-  than ``MAX_DIP_S`` (a low-thrust manoeuvre or a fall is flight), or
-- the vehicle is within ``NEAR_M`` of a place where it rested (low thrust, still
-  to ``STILL_M`` over ``STILL_S``): spinning up before lift-off, touching down.
-
-Airborne stretches shorter than ``MIN_AIRBORNE_S`` (hops) are ground too.  The
-same rule serves raw flights and state tables (both have ``t``, ``px..pz``,
-``u1..u4``), so ``qr diagnose`` and the learning data set agree on it.
+A row is on the ground when the rotor-map thrust is low (``THRUST_OFF`` / ``THRUST_ON`` hysteresis, median over
+``SMOOTH_S``, dips under ``MAX_DIP_S`` kept while moving) or the vehicle is within ``NEAR_M`` of a place it
+rested; airborne stretches under ``MIN_AIRBORNE_S`` are ground too.  One rule for raw flights and state
+tables.  docs/diagnose.md "What is flight".
 """
 
 from __future__ import annotations

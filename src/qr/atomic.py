@@ -1,17 +1,8 @@
 """Write-then-rename so no reader ever sees a half-written output, and qr only removes what it wrote.
 
-Temporaries are hidden files beside the output whose names carry the writer's
-host, pid and start time (:func:`qr.procs.temp_prefix`): one left by a killed
-process is recognised as an orphan and removed by
-:func:`qr.procs.remove_orphan_temporaries` (the workflow does it at start, a
-``qr`` command beside and inside its ``--out``).  A written file and its folder
-are ``fsync``-ed around the rename, so a power cut leaves the old file or the
-new one, never a torn one.
-
-An output folder carries a marker, ``.qr-output.json``, listing the files qr
-wrote there.  Writing a folder again replaces exactly those files: a file the
-user added is kept, and a file of the user's in the way of a new output is never
-overwritten (:class:`qr.errors.QrInputError`).
+Temporaries carry the writer's identity (:func:`qr.procs.temp_prefix`) so a killed process's are removed
+later; files and folders are ``fsync``-ed around the rename; an output folder's marker ``.qr-output.json``
+lists the files qr wrote there, the only ones it replaces.  docs/cli.md "Your files are safe".
 """
 
 from __future__ import annotations

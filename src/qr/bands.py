@@ -1,26 +1,9 @@
 """How far to trust a rollout: uncertainty bands around a model's predictions (docs/evaluate.md, "Bands").
 
-A band is drawn from an *ensemble of plants* flown from the same start states on the same inputs as the
-model itself (the centre): draws of the refined physical parameters from the refinement's Gauss–Newton
-sandwich covariance (:mod:`qr.diagnose.refine`, ``kind = "parameters"``), or the members of a residual
-ensemble, each trained on the training flights resampled by flight (``qr learn residual``,
-``learn.members``; ``kind = "ensemble"``).  For every window and quantity (p, v, R, ω) the draws'
-distances from the centre's prediction at h give radii r₅₀ and r₉₀ (their 50 % and 90 % quantiles); the
-band at level L is the ball of radius ``s_q · r_L`` around the centre's prediction, with one scale ``s_q``
-per quantity chosen on the training side's validation data so that the 90 % band covers 90 % there
-(:func:`calibrate`): an ensemble that shares the model's bias is typically far too narrow, and the
-scale says by how much.  A sample is *covered* when the truth lies inside the ball (the position within
-``s r`` metres of the prediction, the attitude within ``s r`` radians of rotation …).
-
-The radii come from :func:`qr.rollout.roll_window`, the one rollout loop, compiled and run over every
-start in parallel; each start writes its own row, so the numbers do not depend on the thread count, and
-the draws come from a seeded generator through a compiled Cholesky factor and compiled products (no
-BLAS): same seed ⇒ same bands, bit for bit.
-
-The band source of a vehicle file ``X.yaml`` (:func:`source_of`) is ``X.bands.json`` beside it (schema
-``qr.bands/1``: written by ``qr learn residual`` as ``hybrid_vehicle.bands.json``, and by the workflow's
-held-out rule beside the refined vehicle), else, for ``qr diagnose``'s ``extended_vehicle.yaml``, the
-``refine`` block of the ``diagnosis.json`` beside it.
+The draws of an ensemble of plants (refined parameters from the sandwich covariance, or a residual
+ensemble's members) flown beside the model give radii r₅₀, r₉₀ per window and quantity, scaled per quantity
+on the validation data (:func:`calibrate`); the band source of a vehicle file: :func:`source_of`.  The same
+numbers on any thread count (one rollout loop, compiled draws, no BLAS).
 """
 
 from __future__ import annotations
@@ -348,8 +331,8 @@ def read_source(doc: dict, file: str, base: Path) -> Source:
 
 
 def source_of(vehicle_file, vehicle) -> tuple[Source | None, str]:
-    """The band source of a vehicle file (see the module doc) and, where there is none or it does not fit the
-    file, why."""
+    """The band source of a vehicle file ``X.yaml``: ``X.bands.json`` beside it, else the ``refine`` block of the
+    ``diagnosis.json`` beside an ``extended_vehicle.yaml``; where there is none or it does not fit, why."""
     path = Path(str(vehicle_file))
     side = path.with_name(path.stem + SUFFIX)
     doc, file = None, None

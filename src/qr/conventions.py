@@ -1,28 +1,9 @@
 """A log's frames, orders, units and rotor numbering, checked from its physics before any identification.
 
-A log written in another convention than the spec's (``docs/spec/flight-log.md``: ENU world, FLU body,
-scalar-first quaternion body → world, metres, the vehicle file's rotor numbering) is still a plausible
-table of numbers, and the diagnosis would explain the mismatch with confident nonsense (a 1.6 N wind
-on a 0.7 kg vehicle).  Each check compares the log *as written* with the common mistakes, each read
-back into the spec's convention (a *reading*), on a relation every flight obeys whatever the
-vehicle's unknown effects:
-
-- **thrust axis**: the specific force the motion capture measures, ``p̈ + g e_z``, points along the
-  body z axis ``R e_z`` and scales with the rotor-map thrust, ``f ≈ k (T/m) R e_z + c`` (``k`` absorbs
-  a C_T or mass error, ``c`` a constant force such as wind).  Readings: the quaternion scalar-last, or
-  world → body; z down; NED world with an FRD body; positions in millimetres or centimetres.
-- **gyro** (where logged): the body rate the attitude implies equals the gyro up to a bias.  Readings:
-  an FRD gyro, a gyro in degrees per second.
-- **rotor layout**: the roll, pitch and yaw torque of the rotor map moves with the torque the attitude
-  needs, ``J ω̇ + ω × J ω``, on every axis (a partial correlation: the aerodynamic torques a rotor map
-  leaves out projected out first).  Readings: every other numbering of the rotors, the yaw
-  signs reversed, and the standard layouts (plus, x) in every numbering (an x file for a plus frame).
-
-A reading that explains the log far better than the log as written (the fit's residual ``RATIO``
-times smaller on some axis and no larger on any, or a rotor reading's summed correlation clearly
-higher: ``check_rotor_layout``) is the likely mistake, and the check refuses the log in one line
-naming it and the fix.  Skipped, with the reason said, where the log cannot tell (a hover without
-manoeuvres; no gyro).  A user who knows better names the check in ``skip_checks``.
+Each check (thrust axis, gyro, rotor layout) compares the log as written with the common mistakes read back
+into the spec's convention (docs/spec/flight-log.md), on a relation every flight obeys whatever its effects;
+a reading that explains the log far better (``RATIO``; :func:`check_rotor_layout`) is refused in one line
+naming it and the fix.  The checks, readings and thresholds: docs/cli.md "Convention checks".
 """
 
 from __future__ import annotations

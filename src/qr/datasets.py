@@ -1,26 +1,9 @@
 """Learning data: input groups, residual targets, and splits that cannot leak.
 
-A *learning table* has one row per sample of the filtered flights: ``flight``,
-``t``, every input group's columns (``v_b.x`` ... ``u2.4``) and both targets
-(``f_a.x`` ... ``tau_a.z``, thesis eqs. 4.34 and 4.39, body frame).  It is
-built once per data set (:func:`build_table`) and every training run selects
-its inputs and target from it (:func:`xy`).  :func:`features` computes the
-same columns from a :class:`qr.effects.Signals`, so a saved model can be fed
-from a simulation.
-
-Splits never shuffle across time: every part is a set of contiguous stretches
-of flight, in time order.  ``thesis`` takes fixed sample windows (1500-3000
-train, 3000-4500 test, the train window cut 70/15/15 into train/validation/
-inner test blocks); ``blocked`` cuts every flight into train | gap | validation
-| gap | test blocks with gaps of at least ``gap_s``; ``by_flight`` holds out
-whole flights.
-
-Leakage: ``f_a`` is computed algebraically from ``a_b`` (4.34) and ``tau_a``
-from ``alpha`` (4.39).  A model fed that input learns the label's own formula,
-scores an RMSE no model of the physics can reach, and in simulation closes an
-algebraic loop (acceleration -> force -> acceleration) that the thesis (§5.3.1)
-found unstable.  Such runs are flagged ``leaks_target`` and are never chosen
-as the best model or handed to the simulation.
+One learning table per data set (:func:`build_table`; :func:`features` gives the same columns from a
+simulation), the runs' inputs and target from it (:func:`xy`); splits never shuffle across time; runs fed
+the label's own input are flagged ``leaks_target``.  The splits and why inputs leak: docs/learn.md "Data and
+splits", "Why some inputs leak".
 """
 
 from __future__ import annotations

@@ -156,10 +156,13 @@ def _wind_force(s, v):
     return D
 
 
-def _body_force_bias(s, v):
-    D = _zeros(s, 3)
-    D[:, 0:3, :] = np.eye(3)
-    return D
+def _bias(rows: slice):
+    """A constant on the wrench rows ``rows`` (force 0:3, torque 3:6)."""
+    def design(s, v):
+        D = _zeros(s, 3)
+        D[:, rows, :] = np.eye(3)
+        return D
+    return design
 
 
 def _thrust_gain(s, v):
@@ -205,12 +208,6 @@ def _cg_offset(s, v):
     D = _zeros(s, 2)
     D[:, 4, 0] = T  # rx: torque [0, rx T, 0]
     D[:, 3, 1] = -T  # ry: torque [-ry T, 0, 0]
-    return D
-
-
-def _torque_bias(s, v):
-    D = _zeros(s, 3)
-    D[:, 3:6, :] = np.eye(3)
     return D
 
 
@@ -307,7 +304,7 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("wind_force", ("fx", "fy", "fz"), ("N",) * 3, (0, 0, 0), _wind_force, F,
            doc="force R^T [fx, fy, fz] (constant in the world frame)",
            meaning="a constant force in the world frame (wind, or a tilted motion-capture vertical)"),
-    Effect("body_force_bias", ("bx", "by", "bz"), ("N",) * 3, (0, 0, 0), _body_force_bias, F,
+    Effect("body_force_bias", ("bx", "by", "bz"), ("N",) * 3, (0, 0, 0), _bias(slice(0, 3)), F,
            doc="force [bx, by, bz] (constant in the body frame)",
            meaning="a constant force in the body frame (along z: a thrust offset)"),
     Effect("thrust_gain", ("gain",), ("-",), (1,), _thrust_gain, (2, 3, 4),
@@ -325,7 +322,7 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("cg_offset", ("rx", "ry"), ("m", "m"), (0, 0), _cg_offset, (3, 4),
            doc="torque [-ry T, rx T, 0]",
            meaning="the centre of gravity off the rotor centre: the thrust rolls and pitches the body"),
-    Effect("torque_bias", ("tx", "ty", "tz"), ("N m",) * 3, (0, 0, 0), _torque_bias, TQ,
+    Effect("torque_bias", ("tx", "ty", "tz"), ("N m",) * 3, (0, 0, 0), _bias(slice(3, 6)), TQ,
            doc="torque [tx, ty, tz]",
            meaning="a constant torque on the body"),
     Effect("yaw_torque_gain", ("gain",), ("-",), (1,), _yaw_torque_gain, (5,),

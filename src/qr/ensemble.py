@@ -1,32 +1,9 @@
 """A residual ensemble for ``qr learn residual``'s band (``learn.members``; :mod:`qr.bands`).
 
-Each member starts from the trained hybrid's residual and is fine-tuned (:func:`qr.residual_fit.train`,
-the hybrid's settings and validation windows, at most ``learn.member_epochs`` epochs, ``learn.patience``,
-keeping its best validation epoch but never the start itself) on the training flights *resampled by
-flight*: as many flights as there are, drawn with replacement, each drawn flight bringing all of its
-training windows (a flight drawn twice counts twice: its windows enter the member's training set twice, it
-stays one flight); the validation flights are never drawn.  Member k draws its flights from
-``numpy.random.default_rng([seed, k])`` and shuffles with seed ``seed + 1 + k``.  A lone flight
-(validation by time) cannot be resampled by flight: its members differ by their seeds only, and the band
-says so.  The members are therefore a bootstrap fine-tune around the trained network, not independent
-trainings: their spread measures how far a few epochs on another draw of the flights move it, and the band's
-scale (calibrated on the validation flights, :func:`calibrated`) sets the width.
-
-Members train in ``learn.member_jobs`` processes at once (fresh interpreters, one torch and one numba thread
-each; 0: :func:`jobs`).
-A member's weights depend only on its seed, its draw and the data: the same bytes serially or in parallel,
-and no member touches the process's random state (the hybrid's training is unchanged by them).
-
-The files, beside ``hybrid_vehicle.yaml`` (an addition to docs/spec/hybrid.md's outputs; the hybrid
-itself is unchanged)::
-
-    members/member1.npz …        each member's weights, the format of residual.npz (qr.mlp/1)
-    hybrid_vehicle.bands.json    {"schema": "qr.bands/1", "kind": "ensemble",
-                                  "members": [{"residual": <the vehicle key `residual` of that member, its
-                                               model relative to this file>, "seed", "flights": {flight: times
-                                               drawn}, "best_epoch", "epochs_run"}, ...], "start": how they began,
-                                  "scale": {"p", "v", "R", "w"}, "horizon": H (the h the scale was chosen at),
-                                  "calibrated_on": "..."}
+Each member is the trained hybrid's residual fine-tuned on the training flights resampled by flight (member
+k draws with ``numpy.random.default_rng([seed, k])``, shuffles with seed ``seed + 1 + k``), in
+``learn.member_jobs`` processes; the same bytes serially or in parallel.  What the members measure, and the
+files (``members/``, ``hybrid_vehicle.bands.json``): docs/evaluate.md "Bands: how far to trust a rollout".
 """
 
 from __future__ import annotations

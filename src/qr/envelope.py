@@ -1,18 +1,8 @@
 """The training envelope: the states and inputs the training flights covered, and the held-out windows
 that leave it (docs/evaluate.md, "Outside the training envelope").
 
-A model identified on some flights is only tested inside what those flights did.  The envelope is, per
-quantity, the extreme values over the samples the training flights' scored windows cover (the estimate
-the rollout protocol starts from, and the measured rotor speeds):
-
-- ``speed``: ‖v‖ (m/s), its maximum;
-- ``tilt``: the angle of the body z axis from the world's vertical (rad), its maximum;
-- ``rotor``: each rotor's speed (the vehicle's unit), its minimum and maximum;
-- ``rate``: each body-rate component (rad/s), its minimum and maximum.
-
-A window (start i, steps i … i+H) is *outside* when any of its states (i … i+H) or inputs (i … i+H−1)
-lies beyond the envelope on any quantity: extremes, not quantiles, so "outside" means beyond anything
-the training flights did, with no threshold to choose.
+Per quantity (``speed``, ``tilt``, each ``rotor``, each body ``rate``) the extremes over the training flights'
+scored windows; a window is *outside* when any of its states or inputs lies beyond them (no threshold).
 """
 
 from __future__ import annotations

@@ -1,25 +1,7 @@
 """What each flight of a data set flies: trajectory type, time scale, payload, controller, height.
 
-Read from a data-set file (``conf/data/*.yaml``, the workflow's): each set may list under ``flown:``
-groups of flights that fly the same thing, as the source's documentation says::
-
-    flown:
-      - {flights: [eckart00, eckart01], trajectory: figure8, time_scale: 1.0, controller: lee, height: 1.0}
-
-One place for the fact: the held-out splits (:mod:`qr.holdout`) name flights by it, and a replay that
-rebuilds the setpoints reads a figure-8 flight's time scale here::
-
-    from qr.flightsets import flight_info
-    flight_info("brushless", "eckart27").time_scale      # 0.5 (the default data set: conf/data/imrclab_crazyflie.yaml)
-
-Field names (docs/workflow.md, "What the flights fly"): ``trajectory`` (a type name, e.g. ``figure8``,
-``sideways``, ``yaw``, ``circle``, ``random``: flights of one group with the same fields repeat one
-trajectory, except ``random``'s), ``time_scale`` (the source's TIMESCALE: the trajectory's
-nominal duration times this; smaller is faster; null where the source gives none), ``segment_s`` (a
-point-to-point flight's time per segment, s), ``axis`` (its direction, ``x`` or ``y``), ``payload_g``
-(a suspended payload's mass, g; 0 none), ``controller`` (as the source names it), ``height`` (m,
-where known), ``note`` (free text).  A group may describe flights the set does not use (the source's
-whole list); every flight the set uses must be described once, or not at all (no ``flown:``).
+Read from a data-set file's ``flown:`` groups (``conf/data/*.yaml``): the one place for the fact, which the
+held-out splits (:mod:`qr.holdout`) and the replay read.  The fields: docs/workflow.md "What the flights fly".
 """
 
 from __future__ import annotations

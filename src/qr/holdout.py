@@ -1,21 +1,8 @@
 """Which flights train and which are scored: ``evaluate.split`` (docs/evaluate.md, "Held-out splits").
 
-- ``repeat``: every third flight of the set is scored, the others train (``flights[2::3]``; the last of
-  fewer than three).  Where a set flies each trajectory several times, every scored flight repeats a
-  training trajectory: the score measures **interpolation**.
-- ``trajectory``: whole trajectory types (``evaluate.split.trajectories=[sideways]``) or whole time scales
-  (``evaluate.split.time_scales=[0.5]``) are scored, never trained on.
-- ``speed``: per trajectory type, its faster time scales are scored and the slower ones train
-  (``evaluate.split.time_scales=[0.6,0.5]``; default the fastest third of each type's scales):
-  **extrapolation** to a faster flight.  Flights without a time scale take no part.
-
-What each flight flies comes from the data-set file (:mod:`qr.flightsets`): ``evaluate.split.data``
-(a ``conf/data/*.yaml``) and ``evaluate.split.set``, or, in the workflow, the set's own description.
-
-Validation (early stopping, :mod:`qr.residual_training`) is drawn from the training flights only:
-for ``repeat`` every k-th training flight (as before); for ``trajectory`` and ``speed`` whole
-trajectories of the training side (every k-th distinct trajectory, at least one), so the validation
-flights repeat no training trajectory either — a scored flight is never opened.
+``repeat`` (every third flight: interpolation), ``trajectory`` (whole trajectory types or time scales) or
+``speed`` (the faster time scales: extrapolation), by what each flight flies (:mod:`qr.flightsets`); the
+validation flights are drawn from the training side only, so a scored flight is never opened.
 """
 
 from __future__ import annotations

@@ -1,24 +1,9 @@
 """Who wrote this, and is that process still alive?  Clean-up after a killed run.
 
-A SIGKILL (or a machine that dies) runs no clean-up code, so what a killed
-process leaves behind is recognised later by the process that left it: its
-host name, pid and start time (``/proc/<pid>/stat``, so a reused pid does not
-pass for the dead process).  Two things are cleaned up this way, each only
-when its owner is certainly gone (same host, pid not running or a zombie):
-
-- MLflow runs left RUNNING: :func:`qr.tracking.reap_stale` marks them KILLED;
-- write-then-rename temporaries of :mod:`qr.atomic` (their names carry the
-  writer's identity): :func:`remove_orphan_temporaries`.
-
-Snakemake's directory lock is Snakemake's: after a SIGKILL, ``snakemake --unlock``.
-
-A SIGTERM can be caught: :func:`sigterm_raises` turns it into an exception
-(:class:`Terminated`) so clean-up code runs; :func:`signals_held` defers
-SIGINT/SIGTERM while a few steps must not be cut short.
-
-What another host left is never touched (its processes cannot be checked from
-here): ``mlflow.MlflowClient().set_terminated(run_id, "KILLED")`` is the manual
-way out for a run.
+What a SIGKILLed process left (MLflow runs left RUNNING: :func:`qr.tracking.reap_stale`; :mod:`qr.atomic`'s
+temporaries: :func:`remove_orphan_temporaries`) is recognised by its host, pid and start time and cleaned up
+only when its owner is certainly gone (never another host's); :func:`sigterm_raises` and
+:func:`signals_held` for SIGTERM and SIGINT.  docs/workflow.md "Interrupting and resuming".
 """
 
 from __future__ import annotations

@@ -1,33 +1,9 @@
 """A learned body-wrench residual a vehicle file may carry (docs/spec/hybrid.md): a small MLP.
 
-``[F_b, τ_b] = s_out ⊙ MLP((φ − μ) / σ)``, a body force (N) and torque (N m) at the CG added to
-the vehicle's wrench at every evaluation of the dynamics, so every plant that flies the vehicle
-(``qr evaluate``'s rollout, the replay, ``qr synth``, the study: :mod:`qr.sim.plant`) applies it.
-``φ`` holds only what is known at that instant, in this order (the groups of ``inputs``):
-
-==========  ===  ==========================================================
-``v_b``      3   velocity of the CG in the body frame (m/s)
-``omega``    3   body rate (rad/s)
-``g_b``      3   gravity direction in the body frame, ``Rᵀ (0, 0, −1)``
-``u``        4   rotor speeds over ``rotor_speed_scale``
-``u2``       4   their squares (the rotor loads)
-==========  ===  ==========================================================
-
-Never an acceleration, never a later sample.  Hidden layers are ``tanh`` or ``relu``; the last
-layer is linear.  Trained through the rollout by ``qr learn residual`` (:mod:`qr.residual_fit`).
-
-The vehicle file's key ``residual`` holds the description and the scaling; the weights are a
-NumPy ``.npz`` beside it (``model``, relative to the YAML): arrays ``W0, b0, W1, b1, …`` with
-``W_k`` of shape (out, in) and ``y = act(W_k x + b_k)``, so any tool with NumPy can load it::
-
-    residual:
-      model: residual.npz
-      format: qr.mlp/1
-      inputs: [v_b, omega, g_b, u2]
-      outputs: [fx, fy, fz, tx, ty, tz]
-      activation: tanh
-      layers: [13, 32, 32, 6]
-      scaling: {rotor_speed_scale: 2.2e4, input_mean: [...], input_scale: [...], output_scale: [...]}
+``[F_b, τ_b] = s_out ⊙ MLP((φ − μ) / σ)`` at the CG, added to the vehicle's wrench by every plant that flies
+the vehicle; ``φ`` holds only what is known at that instant (never an acceleration, never a later sample).
+The vehicle-file block and the ``.npz`` weights (format ``qr.mlp/1``): docs/learn.md "A residual trained
+through the rollout".
 """
 
 from __future__ import annotations

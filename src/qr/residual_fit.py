@@ -1,19 +1,8 @@
 """Training a learned wrench (:mod:`qr.residual`) through the rollout (docs/spec/hybrid.md, docs/learn.md).
 
-The loss is the ``qr evaluate`` protocol's own error: from the filtered state at each training start,
-the vehicle plus the network is integrated over H steps (:mod:`qr.rollout_torch`: RK4, measured rotor
-speeds held, the actuator delay applied) and the mean absolute errors per step h of position,
-velocity, attitude angle and body rate are weighted and summed::
-
-    L = Σ_s λ_s Σ_h w_h MAE_{s,h} / ref_s,     w_h ∝ h^p (Σ_h w_h = 1)
-
-``ref_s`` is the benchmark baseline's (``rate_frozen``) mean MAE of signal s over h on the training
-windows, so the signals are on one scale (the states normalised) and ``L`` reads as a weighted mean
-ratio to that baseline.  The gradient flows back through every RK4 stage into the weights
-(back-propagation through time); the network starts at zero output (the physical vehicle), Adam
-steps on shuffled batches of windows, and the validation windows (whole flights, or the last time
-block of a lone flight) stop it early: the weights of the best validation loss are kept.
-
+The loss is the ``qr evaluate`` protocol's own error over H steps (:mod:`qr.rollout_torch`), each signal over
+``rate_frozen``'s, back-propagated through every RK4 stage; Adam from a zero-output network, early stopping
+on the validation windows.  The loss's weights and why: docs/learn.md "A residual trained through the rollout".
 Deterministic: one torch thread, deterministic algorithms, every random draw from ``seed``.
 """
 

@@ -1,16 +1,9 @@
 """The rollout's differentiable twin (torch, float64): the same plant, step and errors as :mod:`qr.rollout`.
 
-The compiled plant (:mod:`qr.sim.plant`) with the parameter vector ``P`` in its own layout: the
-rigid-body derivative with the rotor map (per-rotor thrust scale: C_T; yaw-torque gain: C_Q), every
-catalog effect, the learned torque remainder, and a learned wrench — here any torch module taking the
-features of :mod:`qr.residual` — RK4 over each window's own steps with the measured rotor speeds held
-(zero-order hold, the actuator delay applied to the input), the quaternion renormalised, the tracked
-point (marker offset) in and out.  ``tests/learn/test_rollout_torch.py`` holds it equal to the compiled
-plant to 1e-9 on random states and inputs, for the nominal vehicle and with every catalog effect.
-
-Everything is differentiable in ``P`` (so in J, C_T, C_Q and the effects' parameters: :func:`place`
-puts tensors at their slots) and in the residual's weights; :func:`window_errors` returns the per-step
-errors of a batch of windows, the quantities ``qr evaluate`` averages.
+The compiled plant (:mod:`qr.sim.plant`) with the parameter vector ``P`` in its own layout, a learned wrench
+(any torch module taking :mod:`qr.residual`'s features), RK4 over each window's own steps; differentiable in
+``P`` and in the weights; :func:`window_errors` gives the per-step errors ``qr evaluate`` averages.  Held equal
+to the compiled plant by ``tests/learn/test_rollout_torch.py``; docs/learn.md "The differentiable plant".
 """
 
 from __future__ import annotations
@@ -20,23 +13,12 @@ import torch
 
 from .frames import G
 from .residual import GROUPS, ORDER
-from .plant_state import (N_P, P_B, P_BBIAS, P_CG, P_CQGAIN, P_FLAP, P_FLAP_PITCH, P_GE, P_GZ, P_HUB, P_J, P_LIN,
+from .plant_state import (P_B, P_BBIAS, P_CG, P_CQGAIN, P_FLAP, P_FLAP_PITCH, P_GE, P_GZ, P_HUB, P_J, P_LIN,
                           P_MARKER, P_MASS, P_QUAD, P_RDM, P_RDRAG, P_REM, P_REM_ON, P_ROTOR_J, P_SCALE, P_TBIAS,
                           P_TLIFT, P_UHOVER, P_WIND, P_YAW_GAIN, STATE_PARTS, X_POS, X_QUAT, X_RATE, X_VEL)
 from .sim.plant import MIN_GROUND_HEIGHT
 
 DTYPE = torch.float64
-
-
-def place(P0, *values) -> torch.Tensor:
-    """``P0`` (the plant's vector) as a tensor with ``values`` (pairs of a slot of :mod:`qr.plant_state` and a
-    tensor) put at their slots, differentiably: e.g. ``(P_J, J), (P_SCALE, c_t / c_t0 * ones(4)), (P_CQGAIN, k)``."""
-    P = torch.as_tensor(np.asarray(P0, float)[:N_P], dtype=DTYPE).clone()
-    for slot, v in values:
-        i = slot.start if isinstance(slot, slice) else slot
-        v = torch.as_tensor(v, dtype=DTYPE).reshape(-1)
-        P = torch.cat([P[:i], v, P[i + len(v):]])
-    return P
 
 
 def body_features(inputs, v_b, w, g_b, u, speed_scale: float) -> torch.Tensor:
@@ -408,17 +390,3 @@ def window_errors(pred: torch.Tensor, tp, tq, tv, tw) -> torch.Tensor:
     E = torch.stack([_norm(pred[..., X_POS] - tp), _norm(pred[..., X_VEL] - tv),
                      2.0 * torch.acos(torch.clamp(d, max=1.0)), _norm(pred[..., X_RATE] - tw)], -1)
     return torch.where(present, E, torch.full_like(E, float("nan")))
-
-
-def delayed_inputs(t: np.ndarray, U: np.ndarray, d: torch.Tensor) -> torch.Tensor:
-    """The rotor speeds acting at each stamp for a delay ``d`` (s), differentiably in ``d``
-    (``np.interp(t − d, t, U)``, as :meth:`qr.rollout.Windows.inputs`)."""
-    Ut = torch.as_tensor(U, dtype=DTYPE)
-    if float(d.detach()) <= 0:
-        return Ut
-    s = torch.as_tensor(np.array(t, float), dtype=DTYPE) - d
-    k = np.clip(np.searchsorted(t, s.detach().numpy(), side="right") - 1, 0, len(t) - 2)
-    t0, t1 = torch.as_tensor(t[k], dtype=DTYPE), torch.as_tensor(t[k + 1], dtype=DTYPE)
-    f = torch.clamp((s - t0) / (t1 - t0), 0.0, 1.0)[:, None]
-    return (1 - f) * Ut[k] + f * Ut[k + 1]
-

@@ -1,24 +1,8 @@
 """The rotor map: rotor speeds -> thrust and body torques.
 
-One matrix ``B`` (4 x 4) maps squared rotor speeds to ``[T, Γx, Γy, Γz]``::
-
-    F_i = C_T u_i^2
-    T   = Σ F_i
-    Γ   = Σ (y_i F_i, -x_i F_i, yaw_sign_i C_Q u_i^2)
-
-Layout ``plus`` is the thesis eq. (4.3): rotor 1 at (+l, 0), 2 at (0, +l),
-3 at (-l, 0), 4 at (0, -l), yaw signs (-1, +1, -1, +1).
-
-Layout ``x`` is the same rotors turned 45° clockwise seen from above (the plus airframe flown with
-its body x axis between rotors 1 and 2), a = l/√2: rotor 1 at (+a, −a) front-right, 2 at (+a, +a)
-front-left, 3 at (−a, +a) back-left, 4 at (−a, −a) back-right, yaw signs (-1, +1, -1, +1) (the
-diagonal pairs 1-3 and 2-4 turn alike)::
-
-    Γx = C_T a (−u1² + u2² + u3² − u4²)
-    Γy = C_T a (−u1² − u2² + u3² + u4²)
-
-Numbered counter-clockwise like ``plus``; an airframe numbered otherwise (the Crazyflie's run
-clockwise, PX4's quad X crosswise) lists its rotors explicitly.
+One matrix ``B`` (4 x 4) maps squared rotor speeds to ``[T, Γx, Γy, Γz]``, ``F_i = C_T u_i^2``, ``Γ = Σ (y_i F_i,
+-x_i F_i, yaw_sign_i C_Q u_i^2)``; the layouts ``plus`` (thesis eq. 4.3) and ``x`` and explicit rotors:
+docs/ingest.md "Vehicle files".
 """
 
 from __future__ import annotations

@@ -1,20 +1,10 @@
 """MLflow runs with provenance: the one way the project opens a tracked run.
 
-Store: ``MLFLOW_TRACKING_URI`` if set (a server for shared tracking), else an
-embedded SQLite store ``results/mlflow.db`` with artifacts in
-``results/mlartifacts`` (``QR_RESULTS`` moves ``results``).  One experiment per
-stage.  Every run is tagged with the git commit, a hash of its resolved
-config and a digest of its input data.  SQLite allows one writer at a time:
-writes are retried, and store creation is serialised with a file lock, so
-concurrent jobs neither lose nor corrupt records.
-
-Faults.  A run ends FINISHED, FAILED (an exception) or KILLED (SIGINT, or
-SIGTERM: while a run is open SIGTERM raises :class:`Terminated`, a
-``KeyboardInterrupt``, unless someone else handles SIGTERM (:func:`qr.procs.sigterm_raises`);
-the final status is written with both signals held back).  SIGKILL cannot be caught: every run is
-tagged with its process (``qr.host``, ``qr.pid``, ``qr.pid_start``), and the
-first run a process opens marks runs left RUNNING by a process of this host
-that is gone as KILLED (:func:`reap_stale`, tag ``qr.killed``).
+Store: ``MLFLOW_TRACKING_URI``, else SQLite ``results/mlflow.db`` (``QR_RESULTS`` moves ``results``); one
+experiment per stage; every run tagged with the git commit, a hash of its config and a digest of its inputs.
+SQLite allows one writer: writes are retried and store creation is locked.  A run ends FINISHED, FAILED or
+KILLED (SIGINT/SIGTERM); runs a dead process left RUNNING are marked KILLED by the next (:func:`reap_stale`).
+docs/workflow.md "Interrupting and resuming".
 """
 
 from __future__ import annotations

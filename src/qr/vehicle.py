@@ -1,20 +1,7 @@
 """Vehicle files: load, validate, save.  The one home of the vehicle parameters.
 
-The format is ``flight-log.md``'s ``NAME.yaml``.  Optional keys this project adds
-(never required of outside files): ``ground_z`` (m, height of the floor in the
-log's world frame), ``hub_z`` (m, height of the rotor hubs above the CG along body z: the rotor drag's
-lever arm, docs/spec/diagnosis.md), ``rotor_speed_min`` / ``rotor_speed_max`` and
-``motor_time_constant`` (s) for simulation, ``effects`` (a list of catalog effects
-``{name, parameters}`` making an *extended* vehicle, as ``qr diagnose`` writes),
-``torque_remainder`` (:mod:`qr.torque_remainder`), ``residual`` (a learned wrench,
-:mod:`qr.residual`: its model file is relative to the YAML that names it, and rewritten
-relative to wherever the vehicle is saved) and ``extends`` (a path, relative to this
-file, of a vehicle whose keys this one overrides).  Rotor and airframe properties the catalog has no
-term for, found by ``qr diagnose … diagnose.refine=rollout`` (:mod:`qr.diagnose.refine`) or known from a
-bench: ``rotor_inertia`` (kg m², each rotor about its spin axis: the gyroscopic moment and the reaction
-when a rotor changes speed), ``rotor_torque_gains`` (each rotor's C_Q over ``torque_coeff``) and
-``flapping_pitch_ratio`` (the blade-flapping moment about body y over the one about x: a frame whose
-flapping is not the same in roll and pitch).
+The format is ``flight-log.md``'s ``NAME.yaml``; the optional keys this project adds (``ground_z``, ``hub_z``,
+rotor limits, ``effects``, learned terms, ``extends``, rotor properties): docs/ingest.md "Vehicle files".
 """
 
 from __future__ import annotations
@@ -38,7 +25,7 @@ REQUIRED = ("name", "mass", "inertia", "thrust_coeff", "torque_coeff", "rotor_sp
 SPEED_UNITS = ("rpm", "rad_s")
 SPEED_IN_RPM = {"rpm": 1.0, "rad_s": 60.0 / (2 * math.pi)}  # one rotor-speed unit, in rpm
 OPTIONAL_DEFAULTS = {"ground_z": 0.0, "hub_z": 0.0, "motor_time_constant": 0.03}
-# rotor and airframe properties the catalog has no term for (module doc); their values mean "none"
+# rotor and airframe properties the catalog has no term for (docs/ingest.md "Vehicle files"); their values mean "none"
 ROTOR_PROPERTIES = {"rotor_inertia": 0.0, "rotor_torque_gains": 1.0, "flapping_pitch_ratio": 1.0}
 KNOWN = set(REQUIRED) | {"arm_length", "rotor_speed_min", "rotor_speed_max", "effects", "extends",
                          "description", "source", "torque_remainder", "residual", "rotor_input", "command_map"} \

@@ -21,7 +21,7 @@ import pytest
 from matplotlib.figure import Figure
 from matplotlib.ticker import FixedLocator
 
-from conftest import VEHICLES
+from conftest import VEHICLES, run_with_overrides
 from qr.effects import CATALOG, DIMENSIONLESS, effects_with_units, unit, with_unit
 from qr.vehicle import load_vehicle
 
@@ -146,8 +146,7 @@ def written(tmp_path_factory):
         run_evaluation([flight], [vehicle, d / "diag" / "extended_vehicle.yaml"], d / "ev", ["evaluate.horizon=20"],
                        log=quiet)
         run_residual([flight], d / "diag" / "extended_vehicle.yaml", d / "res", TINY, track=False, log=quiet)
-        report = filter_stage.run_with_overrides(flight, vehicle, d / "states.parquet", d / "states.nis.json",
-                                                 track=False)
+        report = run_with_overrides(flight, vehicle, d / "states.parquet", d / "states.nis.json", track=False)
         filter_stage.figures(flight, d / "states.parquet", d / "filter", "synth", vehicle)
         nis_figure(pd.read_parquet(d / "states.parquet"), report, d / "filter" / "nis.png")
         write_ingest_summary({"synth": [str(flight)]}, {"synth": str(vehicle)}, d / "tables" / "ingest.csv",

@@ -9,11 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import ROOT, VEHICLES
+from conftest import ROOT, VEHICLES, run_with_overrides
 from qr import states as state_table
 from qr.errors import QrInputError
 from qr.estimation import estimate
-from qr.stages.filter_sets import run_with_overrides
 from qr.flight import write_flight
 from qr.sim.synth import SynthConfig, synthesize
 

@@ -31,6 +31,30 @@ EFFECTS = {  # every catalog effect, at sizes a rollout notices (the Hummingbird
 }
 
 
+def _place(P0, *values) -> torch.Tensor:
+    """``P0`` (the plant's vector) as a tensor with ``values`` (pairs of a slot of :mod:`qr.plant_state` and a
+    tensor) put at their slots, differentiably: e.g. ``(P_J, J), (P_SCALE, c_t / c_t0 * ones(4)), (P_CQGAIN, k)``."""
+    P = torch.as_tensor(np.asarray(P0, float)[:N_P], dtype=rt.DTYPE).clone()
+    for slot, v in values:
+        i = slot.start if isinstance(slot, slice) else slot
+        v = torch.as_tensor(v, dtype=rt.DTYPE).reshape(-1)
+        P = torch.cat([P[:i], v, P[i + len(v):]])
+    return P
+
+
+def _delayed_inputs(t: np.ndarray, U: np.ndarray, d: torch.Tensor) -> torch.Tensor:
+    """The rotor speeds acting at each stamp for a delay ``d`` (s), differentiably in ``d``
+    (``np.interp(t − d, t, U)``, as :meth:`qr.rollout.Windows.inputs`)."""
+    Ut = torch.as_tensor(U, dtype=rt.DTYPE)
+    if float(d.detach()) <= 0:
+        return Ut
+    s = torch.as_tensor(np.array(t, float), dtype=rt.DTYPE) - d
+    k = np.clip(np.searchsorted(t, s.detach().numpy(), side="right") - 1, 0, len(t) - 2)
+    t0, t1 = torch.as_tensor(t[k], dtype=rt.DTYPE), torch.as_tensor(t[k + 1], dtype=rt.DTYPE)
+    f = torch.clamp((s - t0) / (t1 - t0), 0.0, 1.0)[:, None]
+    return (1 - f) * Ut[k] + f * Ut[k + 1]
+
+
 def _net(vehicle, activation="tanh", depth=2, seed=0):
     """A learned wrench with random (non-zero) weights of the vehicle's scale."""
     rng = np.random.default_rng(seed)
@@ -130,7 +154,7 @@ def test_whole_windows_equal_the_compiled_rollout(case, hummingbird):
     P = true_params(vehicle, effects)
     H = 15
     w = _piece(np.random.default_rng(2), vehicle, H=H)
-    Ud = rt.delayed_inputs(w.t, w.U, torch.as_tensor(P[P_DELAY]))
+    Ud = _delayed_inputs(w.t, w.U, torch.as_tensor(P[P_DELAY]))
     np.testing.assert_allclose(Ud.numpy(), w.inputs(P), rtol=1e-12)
     starts = [s for s in (0, 7, 33, 60, 100) if w.ok[s] and s + H < len(w.t)]
     assert len(starts) >= 4
@@ -158,8 +182,8 @@ def test_gradients_reach_the_physical_parameters(hummingbird):
     j = s + np.arange(1, H + 1)
     J = torch.tensor(P0[P_J], requires_grad=True)
     c = torch.tensor(1.0, dtype=torch.float64, requires_grad=True)  # C_T / C_T(file)
-    P = rt.place(P0, (P_J, J), (P_SCALE, c * torch.as_tensor(P0[P_SCALE])))
-    Ud = rt.delayed_inputs(w.t, w.U, P[P_DELAY])
+    P = _place(P0, (P_J, J), (P_SCALE, c * torch.as_tensor(P0[P_SCALE])))
+    Ud = _delayed_inputs(w.t, w.U, P[P_DELAY])
     t = lambda a: torch.as_tensor(np.array(a))[None]  # noqa: E731
     E = rt.window_errors(rt.rollout(t(w.X0[s]), Ud[j - 1][None], t(w.t[j] - w.t[j - 1]), P),
                          t(w.tp[j]), t(w.tq[j]), t(w.tv[j]), t(w.tw[j]))

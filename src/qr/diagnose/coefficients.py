@@ -1,29 +1,9 @@
 """What the named effects say about the vehicle file's own numbers, where the data can tell.
 
-A coefficient effect (a C_T or C_Q error, an inertia or mass error) is a factor on a number in the
-vehicle file.  When that factor is gross (``GROSS``: 50 % or more either way) the file itself would be
-the finding ("C_Q in vehicle.yaml looks ×9.8 too small").  Such a statement is made only where the
-coefficient is identified (:func:`evidence`, :func:`coefficient_checks`):
-
-- no near-collinear partner: its variance inflation in the named set's joint fit is below ``VIF_MAX``
-  (else the data fix only a combination: the pair is named in the unresolved note, as a C_T error
-  against a constant body-z force while the thrust barely changes); an effect the selection reports
-  confounded (a C_T error against a mass error, which the roll/pitch torque could not arbitrate) is
-  stated with its partner;
-- stable: the named set refitted on the first and on the second half of the training blocks (in time:
-  across flights where there are several) makes the same statement on each;
-- consistent with the log's own evidence: a C_T or mass factor must agree with the hover thrust the
-  rotor map gives against the weight (``HOVER_TOL``); C_Q is fixed only relative to J_zz
-  (J_z α_z = C_Q-torque): its statement is about the ratio;
-- not a rate damping: a C_Q error scales the rotors' own yaw torque whatever the yaw rate, a yaw torque
-  that grows with the yaw rate is the rotor drag's moment at the hubs (the spec); an inertia error acts
-  through the angular acceleration, a torque opposing the body rate (the hubs' vertical rotor drag, the
-  airframe's own damping) is no inertia.  Where the set did not name it, the C_Q factor is fitted again
-  beside ``rotor_drag_moment`` (``DAMPING``), an inertia factor beside a rate damping ``-diag(c) ω``
-  (``RATE_DAMPING``, a check term outside the catalog): a factor that is no longer gross was a damping,
-  never a statement.
-
-What fails is listed as unresolved, with why: never a statement.
+A gross factor (``GROSS``) on a C_T, C_Q, inertia or mass is stated only where the coefficient is identified
+(:func:`evidence`, :func:`coefficient_checks`: no near-collinear partner, stable over the two halves,
+consistent with the hover thrust, not a rate damping); what fails is listed as unresolved, with why, never
+stated.  The rules: docs/diagnose.md "How it decides".
 """
 
 from __future__ import annotations

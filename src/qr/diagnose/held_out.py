@@ -1,14 +1,8 @@
-"""The held-out checks: what the named set explains on data the fit never saw, and whether the model
-describes the flights at all.
-
-The third step of :func:`qr.diagnose.run`.  On the cross-fitted held-out rows (as the fit: with one
-filter's rotor speeds in label and regressor, an effect on the rotor map scales the label's own rotor
-noise and looks worse than it is), a named effect the held-out part does not support is dropped, one at
-a time (:func:`held_out_support`, :func:`unsupported`).  On the full-flight held-out rows, the nominal
-and the extended residual, the noise floor and the residual anatomy (:func:`check_held_out`); a flight
-whose residual stays beyond ``MISFIT`` of the vehicle's scales is one the model does not describe: of what
-the catalog explains there, only its largest effect is stated (:func:`largest_effect`), and nothing is
-written into the vehicle.
+"""The held-out checks, the third step of :func:`qr.diagnose.run`: a named effect the cross-fitted held-out rows
+do not support is dropped (:func:`held_out_support`, :func:`unsupported`); on the full-flight held-out rows the
+nominal and extended residuals, noise floor and anatomy (:func:`check_held_out`); a flight the model does not
+describe (beyond ``MISFIT``) gets only its largest effect stated (:func:`largest_effect`), nothing written.
+docs/diagnose.md "A flight the model does not describe".
 """
 
 from __future__ import annotations

@@ -1,22 +1,8 @@
 """The noise floor: how much of the residual is estimation noise, per sample and axis.
 
-From the filter's posterior standard deviations (``sd_`` columns of the state
-table), propagated to first order through the residual labels:
-
-    f_a = m a_b - m R^T g - T e3     var(f_a,i) = m² Σ_j R_ji² sd(a_j)² + m² Σ_j ([g_b]×)_ij² sd(θ_j)²
-                                                  + δ_i3 Σ_k (∂T/∂u_k sd(u_k))²
-    τ_a = J α - (Jω)×ω - Γ          var(τ_a,i) = J_i² sd(α_i)² + Σ_k (∂Γ_i/∂u_k sd(u_k))²
-
-(``g_b = Rᵀ g``; a body-frame attitude error ``δθ`` moves it by ``g_b × δθ``.)
-
-A posterior covariance is only as right as the filter's noise model, and the
-labels use rotor signals smoothed like the motion estimates, not the rotor
-filter's own.  So the level is calibrated per axis on the data
-(:func:`calibrate`): the cross-fitting filters saw disjoint samples, so the
-difference of their labels at the same stamps is pure estimation noise, with
-variance ``var_even + var_odd``; its ratio to the propagated variances scales
-the floor.  Without ``sd_`` columns, a robust first-difference estimate of
-white noise is used.
+The filter's posterior standard deviations (``sd_`` columns) propagated to first order through the residual
+labels, calibrated per axis on the difference of the cross-fitting filters' labels (:func:`calibrate`;
+without ``sd_`` columns, a robust first-difference estimate).  docs/diagnose.md "How it decides".
 """
 
 from __future__ import annotations

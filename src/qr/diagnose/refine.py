@@ -1,53 +1,7 @@
-"""Physical parameters by simulation error: ``qr diagnose … diagnose.refine=rollout`` (issues 26, 33).
-
-The diagnosis estimates every parameter by equation error: the force and torque balance one sample at a
-time (thesis eqs. 4.34, 4.39).  A simulator is judged by where it is half a second later
-(docs/spec/evaluate.md).  Starting from the equation-error estimates, this module adjusts the named
-effects' parameters and the vehicle's own coefficients — the inertia J (``inertia_error``), C_T
-(``thrust_gain``), C_Q (``yaw_torque_gain``), a pure delay (``actuator_delay``), each rotor's C_T
-(``motor_imbalance``) and the CG (``cg_offset``), each as its catalog effect so that the one plant
-(:func:`qr.sim.plant.true_params`) gives it one meaning — and the rotor and airframe properties the
-catalog lacks (``PROPERTIES``: each rotor's C_Q, the rotors' inertia, the flapping pitch/roll ratio; vehicle
-keys) to minimise the evaluate protocol's multi-step error on the TRAINING windows, within the catalog's
-plausible bounds (:func:`qr.effects.plausible_bounds`)::
-
-    L(θ) = ½ Σ_windows Σ_h Σ_s ‖e_{s,h}(θ)‖² / (N ref_s²),   s ∈ {p, v, R, ω}
-
-with ``e`` the rollout's error vectors of position, velocity, attitude (the rotation vector
-2 sgn(w) vec(q_true⁻¹ ⊗ q̂), whose norm is 2 sin(angle/2), the protocol's angle to < 0.4 % below
-0.3 rad) and body rate, ``ref_s`` the benchmark baseline's (``rate_frozen``) mean error over h on the
-same windows (:func:`qr.rollout.reference_mae`), N the number of windows.  The rollout is ``qr evaluate``'s
-own loop (:func:`qr.rollout.roll_window`: a diverged window scored as the protocol scores it, in the cost
-and in every Jacobian variant); its Jacobian is by forward differences, every parameter's perturbed
-rollouts of a window in one pass; the minimiser is Levenberg–Marquardt with the step solved within the
-bounds (:func:`qr.identification.box_qp.box_qp`).
-
-The terms a rollout bends most easily into compensation (``EXTRA_TERMS``) are admitted only where they lower
-the loss on the held-out windows (:func:`_admit`).  The written model (:func:`_written`) starts from the
-one-step model and keeps the force and torque balance (:class:`Balance`: no axis's equation error more than
-``BALANCE_TOL`` over the one-step model's) and the physical ranges; the parameter directions the data cannot
-fix (:func:`_unconstrained`) stay at their one-step values and are reported; the report splits the error at
-H into what each term removes (:func:`_ablation`).
-
-Standard errors: the Gauss–Newton covariance from that Jacobian, as a sandwich (``A⁻¹ B A⁻¹``, ``A = JᵀWJ``, B
-the long-run covariance of the windows' own gradients, Bartlett weights over the windows starting within
-``block_s``, at least 4 horizons, of each other): neighbouring windows share samples, and a rollout's
-errors are correlated over the whole horizon, so the textbook ``σ² A⁻¹`` would be far too small (its
-coverage on synthetic flights: ``tests/diagnose/test_refine.py``, ``benchmarks/refine_coverage.py``).  A
-parameter held at a bound has none.
-
-Errors in variables: noise in the logged rotor speeds makes a larger inertia look better (it filters
-the noise the rollout integrates); the cost subtracts what the noise adds, rolling each window out again
-on its inputs plus a realisation of their noise (:func:`_normal`).
-
-Physical range: the plausible bounds; for the inertia the rigid-body limit J_ii ≤ m r² with r the
-largest rotor distance (no mass beyond the rotors); for C_Q a propeller's torque-to-thrust ratio
-(``KAPPA_PER_R``); for the properties :func:`property_range`.  What the rollout wants outside its physical
-range, and a named effect's parameter it wants beyond the one-step estimate's standard errors, is reported;
-the first is fitted again within its range (``diagnose.refine_beyond``), the second held at its
-equation-error value.  Deterministic: fixed chunks, fixed summation order (no dependence on the thread
-count), a compiled eigen-decomposition; the noise realisation is drawn from ``seed``.
-"""
+"""Physical parameters by simulation error: ``qr diagnose … diagnose.refine=rollout`` (issues 26, 33): the
+equation-error estimates adjusted to minimise the evaluate protocol's multi-step error on the training windows.
+The method (loss, admission, balance, unconstrained directions, errors in variables, standard errors, physical
+ranges): docs/diagnose.md "Refinement by simulation error"."""
 
 from __future__ import annotations
 
@@ -754,16 +708,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     estimates) and the vehicle's coefficients on the ``train`` windows by the rollout's error; score the
     equation-error and the refined model on ``held_out``.  ``rotor_noise``: per training piece, the rotor
     speeds' noise (measured less filtered; None: no errors-in-variables correction); ``seed``: its
-    realisation (see the module doc).
-
-    Two fits.  The first moves every parameter within its plausible bounds: what the rollout wants, with
-    standard errors.  The written model is a second fit, within the physical ranges: a parameter the
-    rollout wants outside its physical range or on a plausible bound (it wants beyond it), or a named
-    effect's parameter the rollout wants beyond its standard errors from the one-step estimate (the
-    one-step fit measures that force or torque sample by sample; the rollout moving it is compensation for
-    what the model lacks, said in the report), is held at its one-step value, the others fitted again.  If
-    the written model does not lower the training loss below the one-step model's, the one-step model is
-    written."""
+    realisation.  Two fits: what the rollout wants within the plausible bounds, then the written model within
+    the physical ranges (docs/diagnose.md "Refinement by simulation error", "What is written")."""
     t0 = time.perf_counter()
     H = settings.horizon
     specs, why = _specs(vehicle, effects, settings)

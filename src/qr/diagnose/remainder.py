@@ -1,17 +1,7 @@
-"""What the named effects leave: structure beyond the catalog, and the learned torque remainder.
-
-Beyond the catalog (:func:`remainder`): a non-leaking learned model (``qr.models``; inputs never
-include ``a_b`` or ``alpha``, from which the residual is computed) is fit to the training part of
-the remaining residual and judged on the held-out part.  Structure remains when it cuts the
-held-out weighted loss by more than ``remainder_min_gain``; each input group alone then says what
-the remainder is correlated with.
-
-The learned torque remainder (:func:`fit_torque_remainder`, ``diagnose.torque_remainder_ridge > 0``):
-a linear map (:mod:`qr.torque_remainder`) of the torque the named effects leave, written into the
-extended vehicle as a hybrid, not a cause.
-
-Both on the cross-fitted labels (features from one half-sample filter, labels from the other: no
-shared noise).
+"""What the named effects leave: structure beyond the catalog (:func:`remainder`: a non-leaking learned model
+judged on the held-out part) and the learned torque remainder (:func:`fit_torque_remainder`: a linear map
+written into the extended vehicle as a hybrid, not a cause); both on the cross-fitted labels (no shared
+noise).  docs/diagnose.md "How it decides", step 10.
 """
 
 from __future__ import annotations

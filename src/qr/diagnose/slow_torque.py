@@ -1,26 +1,8 @@
 """The slow torque balance: an inertia error judged on the angular momentum over a rollout horizon.
 
-Why a second criterion.  The selection scores effects on the one-step residual,
-where ``inertia_error``'s regressor is the angular acceleration: the attitude
-measurement differentiated twice, noise-dominated on a small vehicle in
-closed-loop flight.  Summed over ``H`` samples that regressor becomes
-``Δω / dt`` (the noise of the second difference cancels), while the torque
-error a rollout integrates is exactly this sum.  So each diagonal entry of J is
-judged on its own axis's residual summed over windows of ``H`` samples: the
-angular-momentum change ``J Δω`` against the integrated torque.
-
-The rule (one per axis, after the selection, only when it did not name
-``inertia_error``): ``dJ_a`` is named when it raises the cross-validated
-(by block) share of the summed residual explained on axis ``a`` by at least
-``slow_torque_min_gain``, sits at least ``selection.t_name`` block-bootstrap
-s.e. from zero and within its plausible range.  An axis that fails stays at
-the vehicle file's value (reported, with why).
-
-Roll and pitch only.  On the yaw axis the balance reads ``J_zz α_z = C_Q Σ s_i u_i² + …``:
-it fixes C_Q / J_zz, the term of ``yaw_torque_gain``, and cannot tell an inertia from a
-torque coefficient; in closed loop that ratio mostly measures the controller cancelling an
-unmodelled yaw moment (a J_zz of 0.18x the file's on the measured payload flights, and a rollout
-twice as bad).  Naming it an inertia would claim what the data cannot tell.
+Summed over ``H`` samples the inertia's regressor becomes ``Δω / dt`` (the noise of the twice-differentiated
+attitude cancels): each roll/pitch entry of J is named on its own axis's summed residual, only where the
+selection did not name ``inertia_error``.  The rule and why not yaw: docs/diagnose.md "How it decides".
 """
 
 from __future__ import annotations

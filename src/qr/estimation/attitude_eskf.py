@@ -1,29 +1,8 @@
 """Orientation: error-state Kalman filter on SO(3) (thesis §4.2.1.2, eqs. 4.11–4.27).
 
-Nominal state ``[q, ω, α, α̇]``; error state ``δx = [δθ, δω, δα, δα̇]`` (12).
-As the thesis writes it, the rates are WORLD-frame vectors (eq. 4.23a
-propagates ``exp(ω dt) ⊗ q``, a left product) and the attitude error is a
-BODY-frame rotation vector (eqs. 4.24, 4.27a: ``q ⊗ exp(δθ)``, a right
-product), which is why ``F`` (eq. 4.18) carries ``Rᵀ`` in its δθ–δω block:
-with ``R = R̂ exp(δθ)`` and world ``ω``, ``δθ̇ = R̂ᵀ δω`` exactly to first order.
-The state table wants body rates: ``ω_b = Rᵀ ω`` and ``α_b = Rᵀ α`` (the
-latter exact, since ``d/dt(Rᵀ ω) = Rᵀ ω̇ - [ω_b]× ω_b = Rᵀ α``).
-
-Corrections to the thesis, each said where it happens:
-
-- eq. 4.19 reads ``Φ = I + F dt + F² dt²``; the second-order term of
-  ``exp(F dt)`` is ``F² dt² / 2``.
-- eq. 4.23 propagates the mean to first order (``ω += α dt``) while 4.19
-  propagates the covariance to second order; the mean here goes through the
-  same Φ (``φ = ω dt + α dt²/2``, ``ω += α dt + α̇ dt²/2``), so Φ is the
-  Jacobian of the propagation it is paired with.
-
-Added: a restart guard (:data:`RESET_DEG`) for when the filter loses the
-vehicle on measured data.  Everything else is as printed: Q (4.16a) on the
-world-frame α̈ with ``Q_d = G Q Gᵀ dt²`` (4.20–4.21), R_ν (4.16b), H (4.26),
-the error (4.24) and the update (4.25–4.27) with filterpy's Joseph form of 4.27e.  With
-``discretisation: exact`` Φ is the full ``exp(F dt)`` (F is nilpotent:
-``+ F³ dt³/6``) and ``Q_d`` the integrated white noise of intensity ``q``.
+Nominal state ``[q, ω, α, α̇]``, error state ``[δθ, δω, δα, δα̇]`` (12); the rates are world-frame vectors and
+the attitude error a body-frame rotation vector, as the thesis writes them (hence ``Rᵀ`` in F's δθ–δω block).
+The corrections to the thesis (eqs. 4.19, 4.23) and the restart guard (:data:`RESET_DEG`): docs/filter.md.
 """
 
 from __future__ import annotations

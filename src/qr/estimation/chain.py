@@ -1,17 +1,8 @@
 """Integrator chains: the kinematic model shared by all three filters.
 
-A chain of order ``m`` has the states ``[x, x', ..., x^(m-1)]`` and white
-noise on ``x^(m)``: position ``m = 4`` (p, v, a, j; thesis eq. 4.4), the
-vector part of the attitude filter ``m = 4`` (θ, ω, α, α̇; eq. 4.15) and each
-rotor ``m = 3`` (u, u̇, ü; eq. 4.28).
-
-Two discretisations of the process noise:
-
-- ``thesis``: the matrices as printed, ``q`` added to the last state once per
-  sample (eqs. 4.6a, 4.31a; eq. 4.20's ``dt²`` scaling lives in the ESKF);
-- ``exact``: ``q`` is the power spectral density of the white noise and
-  ``Q(dt) = q ∫₀^dt Φ(s) e eᵀ Φ(s)ᵀ ds``, so every sample's own ``dt`` gets the
-  noise that accumulates over it (irregular stamps, predictions through dropouts).
+Order ``m`` states ``[x, x', ..., x^(m-1)]``, white noise on ``x^(m)``: position and attitude ``m = 4`` (thesis
+eqs. 4.4, 4.15), each rotor ``m = 3`` (eq. 4.28).  Process noise ``thesis`` (as printed, once per sample) or
+``exact`` (``q`` a spectral density integrated over each sample's own ``dt``): docs/filter.md.
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
-"""The on-board gyro as a second attitude-filter measurement (body rate, 500 Hz on the vehicle).
-
-The mocap attitude differentiated twice is a poor angular acceleration; the gyro
-measures the body rate directly.  It enters the ESKF as ``z = ω_b + b + ν``
-(:func:`qr.estimation.attitude_eskf.gyro_H`).  The bias ``b`` is taken as
-constant over a flight (on-board calibration leaves a few mrad/s) and estimated
-from a first, mocap-only pass: the median of ``gyro − ω̂_b``.  The noise ``ν``
-(motor vibration, mostly) is measured on the gyro itself: the robust spread of
-its second difference, ``Var(Δ²z) = 6 σ²`` for white noise, which the motion
-barely touches at 100 Hz.
+"""The on-board gyro as a second attitude-filter measurement, ``z = ω_b + b + ν``
+(:func:`qr.estimation.attitude_eskf.gyro_H`): a constant bias from a first mocap-only pass, the noise from
+the gyro's own second difference.  docs/filter.md.
 """
 
 from __future__ import annotations

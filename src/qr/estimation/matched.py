@@ -1,15 +1,8 @@
 """Rotor signals smoothed like the motion estimates, so residual labels compare like with like.
 
-The force label is ``m â - m Rᵀg - T`` with ``â`` from the position smoother and
-the torque label ``J α̂ - (Jω)×ω - Γ`` with ``α̂`` from the attitude smoother.
-For a linear smoother the estimate of a derivative is the smoothed true
-derivative (``â = H_p a``, ``α̂ ≈ H_θ α``), so the rotor terms must pass through
-the same ``H``: ``T = B₀ H_p(u²)``, ``Γ = B₁₋₃ H_θ(u²)`` (``T`` and ``Γ`` are
-linear in the squared speeds).  Otherwise the difference between two smoothers
-(and rotor noise shared by label and regressor) shows up as spurious effects.
-The squared raw speeds go through the position and attitude chain smoothers
-(same order and bandwidth); the first-derivative outputs give the rates the
-``actuator_delay`` term needs.
+A linear smoother estimates a derivative as the smoothed true one (``â = H_p a``), so the rotor terms pass
+through the same smoothers (``T = B₀ H_p(u²)``, ``Γ = B₁₋₃ H_θ(u²)``); else the two smoothers' difference shows
+up as spurious effects.  docs/diagnose.md "How it decides".
 """
 
 from __future__ import annotations

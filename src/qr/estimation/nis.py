@@ -9,7 +9,6 @@ estimates are noisier than their reported ``sd_``), below it under-confident.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,14 +28,6 @@ def _chi2_ppf(q, k):
     from scipy.special import gammaincinv  # chi2.ppf's own kernel: scipy.stats costs a quarter second more
 
     return 2.0 * gammaincinv(k / 2.0, q)
-
-
-def log_likelihood(inn: Innovations, keep: np.ndarray | None = None) -> float:
-    """Gaussian innovation log-likelihood ``-½ Σ (NIS + log det S + m log 2π)`` over the kept samples."""
-    ok = np.isfinite(inn.nis)
-    if keep is not None:
-        ok &= keep[:, None]
-    return float(-0.5 * (np.sum(inn.nis[ok]) + np.sum(inn.logdet[ok]) + ok.sum() * inn.dof * math.log(2 * math.pi)))
 
 
 def nis_stats(nis: np.ndarray, dof: int, confidence: float = 0.95) -> dict:

@@ -1,17 +1,9 @@
-"""Rauch–Tung–Striebel smoothing: the same models run backward over the filtered flight.
+"""Rauch–Tung–Striebel smoothing: the same models run backward over the filtered flight (zero-lag
+derivatives; docs/filter.md): ``filterpy.kalman.rts_smoother`` for the linear filters, the same recursion on
+the ESKF's error state (:func:`qr.estimation.attitude_eskf.rts_eskf`).
 
-Offline data deserve zero-lag estimates: the forward filter's derivatives lag
-the motion by roughly the inverse of its bandwidth, the smoothed ones do not,
-and their errors are smaller.
-
-- Linear filters (position, rotors): ``filterpy.kalman.rts_smoother``.
-- Attitude ESKF: the same recursion on the error state, beside the filter whose
-  state it shares (:func:`qr.estimation.attitude_eskf.rts_eskf`).
-
-Both work on equilibrated states ``D x`` (:func:`equilibration`, every state
-at unit typical variance): a chain's variances span ~14 orders of magnitude
-(m² … (m/s³)² at 100 Hz), and the predicted covariances the backward pass
-inverts drop from cond ≈ 1e7–1e12 to ≈ 1e2–1e3.
+Both on equilibrated states ``D x`` (:func:`equilibration`, unit typical variance): a chain's variances span
+~14 orders of magnitude, and the backward pass's inverses drop from cond ≈ 1e7–1e12 to ≈ 1e2–1e3.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """``filter=auto``: noise intensities that maximise the innovation likelihood of the flight itself.
 
-For each filter the unknowns are the process-noise intensity ``q`` and the
-measurement variance ``r``.  Two facts make this a 1-D search:
-
-- The gains, hence the estimates and innovations, depend only on ``q / r``
-  (scaling Q, R and P together scales S and nothing else), so for a given
-  ratio the likelihood is maximised in closed form by ``c = mean NIS / m``,
-  giving ``q = c λ r₀`` and ``r = c r₀`` (a profile likelihood).
-- The ratio is searched as the filter's corner frequency
-  ``f_c = λ^(1/2m) / 2π`` (the bandwidth of an order-``m`` chain), on a log grid
-  from ``tune.min_corner_hz`` to Nyquist, refined by bounded Brent around the
-  best grid point.
-
-``r₀`` starts from a robust estimate (third differences: ``var Δ³y = 20 σ²``)
-and a second round restarts from the first round's ``r`` (it only enters
-through the initial covariance).  The first ``nis.burn_in_s`` seconds are
-left out of the likelihood, as of the NIS report.
+The gains depend only on ``q / r``, so the scale is profiled out in closed form (``c = mean NIS / m``) and the
+ratio is a 1-D search over the filter's corner frequency ``f_c = λ^(1/2m) / 2π`` (log grid from
+``tune.min_corner_hz`` to Nyquist, then bounded Brent); ``r₀`` from third differences
+(``var Δ³y = 20 σ²``), a second round from the first's ``r``; the first ``nis.burn_in_s`` s left out.
+docs/filter.md.
 """
 
 from __future__ import annotations

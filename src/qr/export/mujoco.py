@@ -1,20 +1,10 @@
 """``qr export --to mujoco``: an MJCF model, ``<name>.xml`` (and, for a hybrid, the module that applies its
 learned terms).
 
-One free body whose frame is the vehicle file's body frame (x forward, z up, origin at the rotor
-map's origin), its ``<inertial>`` at the CG (``cg_offset``) with the mass and principal inertia, one
-site per rotor hub, and two actuators per rotor at its site: a thrust along the site's z with
-``gear = k_i`` (N/(rad/s)², thrust_gain and motor_imbalance included) and a moment about z with
-``gear = yaw_sign_i k_m``.  Both take ``ctrl = ω_i²`` in (rad/s)², so the actuators' forces are
-qr's rotor map ``F_i = C_T u_i²``, ``Γ_z = Σ yaw_sign_i C_Q u_i²`` (thesis eq. 4.3) in rad/s.
-MuJoCo applies a site's force at the site, so the thrusts' moment about the CG is ``Γ - c × T``: the
-CG offset is exact.  Aerodynamic and bias terms have no MJCF element: mapping.md lists them with
-their size (apply them through ``MjData.xfrc_applied`` if needed).
-
-A hybrid's learned terms (the network of ``qr learn residual``, a learned torque remainder) have no
-MJCF element either: ``<name>_learned_wrench.py`` beside the MJCF applies them as
-``MjData.xfrc_applied`` on the body (at its CG), installed as MuJoCo's control callback
-(``mjcb_control``), so it is evaluated at every stage of MuJoCo's RK4, as qr's plant evaluates it.
+One free body (the vehicle file's body frame, ``<inertial>`` at the CG), one site per rotor hub with a thrust
+(``gear = k_i``) and a yaw-moment (``gear = yaw_sign_i k_m``) actuator on ``ctrl = ω_i²``; learned terms through
+``MjData.xfrc_applied`` from MuJoCo's control callback.  The derivation: docs/export.md "How each convention
+was derived", "A hybrid in each simulator".
 """
 
 from __future__ import annotations

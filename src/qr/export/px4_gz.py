@@ -1,23 +1,8 @@
 """``qr export --to px4-gz``: a Gazebo Sim model folder for PX4 SITL, and the PX4 parameters that agree with it.
 
-Element names follow the stock PX4 x500 model (PX4-gazebo-models, models/x500 and x500_base): a
-``base_link`` with the inertial, ``rotor_<i>`` links on revolute ``rotor_<i>_joint``s about z, one
-``gz::sim::systems::MulticopterMotorModel`` plugin per rotor.  That plugin (gz-sim
-MulticopterMotorModel.cc), with the real rotor speed ω in rad/s (joint speed × rotorVelocitySlowdownSim)::
-
-    thrust        motorConstant ω²                    along the rotor link's z
-    drag torque   -turningDirection · momentConstant · thrust   about the rotor's z   (ccw = +1, cw = -1)
-    rotor drag    -|ω| rotorDragCoefficient v⊥        at the rotor link (v⊥: its airspeed across the axis)
-    rolling mom.  -|ω| rollingMomentCoefficient v⊥    a torque ABOUT the direction of v⊥
-    motor         first order, timeConstantUp / timeConstantDown, capped at maxRotVelocity
-
-so ``motorConstant = C_T / f²``, ``momentConstant = C_Q / C_T`` (m), ``turningDirection = ccw`` where
-qr's ``yaw_sign = -1`` (the reaction torque opposes the spin), ``rotorDragCoefficient = k / f``.
-Blade flapping is a torque about ``v × e_z`` (qr: ``k [v_y, -v_x, 0]``), perpendicular to the
-rolling moment's axis ``v``: the two are different terms, so ``rollingMomentCoefficient`` is 0 and
-flapping is listed as impossible.  PX4 (FRD body frame, thrust axis ``(0, 0, -1)``) computes a rotor's
-moment as ``CT p × a - CT KM a``: ``CA_ROTOR<i>_KM = +momentConstant`` for a ccw rotor and
-``CA_ROTOR<i>_PX = x - r_x``, ``PY = -(y - r_y)`` (relative to the CG, y flipped).
+Element names follow the stock PX4 x500 model; the ``MulticopterMotorModel`` plugin's equations against qr's
+plant (``motorConstant``, ``momentConstant``, ``turningDirection``, ``rotorDragCoefficient``, why flapping is
+impossible, ``CA_ROTOR<i>_*``): docs/export.md "How each convention was derived".
 """
 
 from __future__ import annotations

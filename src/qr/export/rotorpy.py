@@ -1,40 +1,8 @@
 """``qr export --to rotorpy``: a RotorPy 3 parameter module, ``<name>_params.py``.
 
-RotorPy's ``Multirotor.compute_body_wrench`` (rotorpy/vehicles/multirotor.py, 3.0.0), in the body
-frame (x forward, z up, like qr's), with ``ω_i`` in rad/s and ``v_i = v_b + ω × r_i`` the airspeed at
-hub ``i`` (``r_i`` = ``rotor_pos`` relative to the CG)::
-
-    thrust     T_i = k_eta ω_i² e_z (+ k_h (v_ix² + v_iy²) e_z: translational lift)
-    rotor drag H_i = -ω_i diag(k_d, k_d, k_z) v_i                     (a force at hub i)
-    flapping   M_i = -k_flap ω_i (v_i × e_z) = -k_flap ω_i [v_iy, -v_ix, 0]
-    parasitic  D   = -|v_b| diag(c_Dx, c_Dy, c_Dz) v_b                 (at the CG)
-    moments    Σ r_i × (T_i + H_i) + Σ rotor_directions_i k_m ω_i² e_z + Σ M_i
-    motors     ω̇_i = (ω_cmd,i - ω_i) / tau_m
-
-Against qr's plant (:mod:`qr.sim.plant`, thesis eq. 4.1 with the catalog's terms) this gives,
-derived term by term (docs/export.md):
-
-- ``k_eta = C_T / f²``, ``k_m = C_Q / f²`` with ``f`` rad/s per vehicle unit; ``rotor_directions_i =
-  yaw_sign_i`` (RotorPy multiplies ``k_m ω²`` by it as the body-z moment: the sign of the reaction
-  torque, not the spin); ``rotor_pos_i = (x_i - r_x, y_i - r_y, hub_z)``: the CG offset is exact there
-  (the thrusts' moment about the CG is ``Γ - c × T``, the catalog's ``[-r_y T, r_x T, 0]``).
-- rotor_drag ``-k Σu [v_x, v_y, 0]`` → ``k_d = k / f`` (``rotor_drag_matrix = diag(k_d, k_d, 0)``; RotorPy
-  applies it at the hubs with their airspeed, so its force has ``-k_d Σ ω_i (ω × r_i)_xy`` more: zero at
-  equal rotor speeds with no roll/pitch rate or the hubs in the CG's plane), and its moment about the CG,
-  ``Σ r_i × H_i``, is qr's ``rotor_drag_moment`` with the same ``k`` exactly (``rotor_pos`` at ``hub_z``):
-  named together, the one ``k_d`` carries both; rotor_drag alone, the moment is RotorPy's addition.
-- translational_lift ``k (w_ix² + w_iy²)`` per rotor → ``k_h = k``: exact (the same hub airspeed).
-- blade_flapping ``k [v_y, -v_x, 0]`` → ``k_flap = -k / (4 ω_hover)``: RotorPy's flapping grows with the
-  rotor speed, qr's does not; exact at a rotor-speed sum of ``4 ω_hover`` (relative error
-  ``|Σω / (4 ω_hover) - 1|`` otherwise).  The minus sign: RotorPy's moment is ``-k_flap Σω [v_y, -v_x, 0]``.
-- quadratic_drag ``-c_j |v_j| v_j`` → ``c_Dj = c_j``: exact for airspeed along one body axis; RotorPy's
-  ``c_Dj |v| v_j`` is larger by ``|v| / |v_j|`` otherwise.
-- the rest (linear drag, per-rotor thrust differences, biases, a constant world force, ground effect,
-  a hybrid's learned torque remainder and learned wrench) has no RotorPy key: the module's
-  ``QrMultirotor`` adds it to the state derivative (the network evaluated in NumPy from its weights,
-  ``<name>_residual.npz`` beside the module: no torch, no qr).  With ``exact_aero=True`` (its default) it also replaces RotorPy's aerodynamics by qr's
-  exact terms, so it integrates qr's plant; ``Multirotor(quad_params)`` alone gives RotorPy's own physics
-  with the mapped coefficients.
+RotorPy's ``Multirotor.compute_body_wrench`` against qr's plant, term by term (``k_eta``, ``k_m``,
+``rotor_pos``, ``k_d``, ``k_h``, ``k_flap``, ``c_D``, and what the module's ``QrMultirotor`` adds):
+docs/export.md "How each convention was derived".
 """
 
 from __future__ import annotations

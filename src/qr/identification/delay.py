@@ -1,23 +1,8 @@
-"""Actuator delay: the rotor map acting ``d`` late, fitted by its exact form.
-
-The catalog's term is the first-order ``-d dW/dt``; for delays comparable to
-the time scale of the rotor commands (tens of ms on a small vehicle) it is a
-poor approximation, and the misfit is "explained" by other torque effects.  So
-the delay is handled by its exact map ``W(u(t - d)) - W(u(t))``:
-
-- before the selection, ``estimate`` finds a first delay ``d₀`` by a 1-D search
-  of the exact map alone, and ``secant_column`` gives the selection a linear
-  column that is exact at ``d = 0`` and ``d = d₀`` (its parameter is still the
-  delay in seconds); the other rotor-map effects (a C_T or C_Q error, a motor
-  imbalance, a CG offset's ``r × T``, ground effect) act through the same late
-  rotor map in the plant, so their designs read the rotor signals ``d`` late
-  (``shift``): a delay and a C_Q error are otherwise not additive;
-- after it, the delay is refitted jointly with the other named effects by a
-  1-D search of the exact map (``qr.diagnose.core.refine_delay``), and the
-  block bootstrap repeats that whole estimator to first order: each replicate
-  solves the model linearised at the estimate ``d*`` (``tangent_column``, label
-  ``y - W(d*) + d* W'(d*)``), a Gauss-Newton step from ``d*`` whose fixed point
-  is the estimate itself.
+"""Actuator delay: the rotor map acting ``d`` late, fitted by its exact form ``W(u(t - d)) - W(u(t))``
+(the catalog's first-order ``-d dW/dt`` is poor at tens of ms): a first delay ``d₀`` by a 1-D search and
+a secant column for the selection (:func:`estimate`, :func:`secant_column`), the rotor-map effects' designs
+read ``d`` late (:func:`shift`), and the bootstrap's linearisation (:func:`tangent_column`).  Why: docs/diagnose.md
+"How it decides".
 """
 
 from __future__ import annotations

@@ -1,27 +1,8 @@
-"""Which catalog effects are present: the selection policy, as small named steps.
-
-1. ``admissible``: a set of effects may be named together only if no two of
-   them are the same term (``SAME_TERM``), no fitted parameter sits on a
-   plausibility bound away from its neutral value (nonsense such as a vehicle
-   with no inertia), and a joint fit explains the force rows and the torque
-   rows nearly as well as each group's own fit (``consistent``: an effect on
-   both must tell both the same story).
-2. ``search``: for k = 1, 2, ... the ``beam`` best admissible sets of k effects
-   by blocked cross-validated loss, each size grown from the previous size's
-   beam.  Comparing whole sets, not adding one effect at a time, lets a
-   per-rotor effect beat the two simpler terms that each mimic half of it
-   (a motor imbalance is a C_T error plus a CG offset to first order).
-3. ``choose_size``: grow while the best set one effect larger beats the
-   current one on held-out blocks by ``min_gain``, consistently across folds,
-   or by ``strong_gain`` where it acts (``better``).
-4. ``resolve_equivalents``: the sets of that size the data cannot tell from
-   the best one (loss within ``min_gain`` *and* a paired per-block difference
-   below ``t_equivalent`` standard errors) are equivalent: the simplest is
-   named and the effects it swaps for are reported as ``confounded_with``.
-
-``torque_arbitration`` decides, before the selection, whether the roll/pitch
-torque rows may speak for a C_T error at all (measured roll/pitch torque far
-from the rotor map's, as on the Crazyflie logs).
+"""Which catalog effects are present: the selection policy, as small named steps: ``admissible`` (no two
+effects the same term, no parameter on a plausibility bound, force and torque rows telling one story),
+``search`` (the ``beam`` best admissible sets of each size, whole sets compared), ``choose_size`` (grow while
+the held-out blocks say so), ``resolve_equivalents`` (the simplest of the sets the data cannot tell apart,
+the others as ``confounded_with``); ``torque_arbitration`` before it.  docs/diagnose.md "How it decides".
 """
 
 from __future__ import annotations

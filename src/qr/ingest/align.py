@@ -1,31 +1,9 @@
 """Time offsets between the motion-capture stream and the on-board streams, estimated from the physics.
 
-Motion capture and the autopilot stamp on different clocks (and an on-board log often stamps a sample
-when it is written, not when it was measured). Each on-board stream is compared with what the
-motion-capture trajectory says it should have been, and the offset is the lag at which they agree best
-(both low-passed alike, refined to a fraction of a sample by a parabola through the peak).
-``aligned(t) = logged(t + τ)`` (positive: the stream was stamped late).
-
-- **gyro**: the body rate the mocap attitude implies (``2 vec(q_k⁻¹ ⊗ q_k+1) / dt``); no force model.
-- **rotors**: the roll and pitch angular acceleration the rotor speeds command through the rotor map,
-  ``(Γ_rotors)_x,y / J``, against the one the mocap attitude needs, ``(J ω̇ + ω × J ω)_x,y / J``, with
-  the torques a rotor model leaves out fitted beside it at every lag (a constant, the body rate's
-  damping, the cross-axis body velocity's blade flapping, the thrust's CG-offset lever): the peak of a
-  partial correlation. The offset includes the motors' response (a speed or command stamped when it was
-  set acts when the rotor reaches it): it is the rotor stream's whole lag, the diagnosis's
-  ``actuator_delay`` included.
-
-Why the torque channel and not the thrust against the vertical acceleration: in closed-loop flight the
-thrust's rate is nearly a combination of the vertical velocity and acceleration, so a drag along the
-body z axis and a rotor lag look alike there. On a synthetic flight with drag (kz = 0.15 N s/m, 0.7 kg)
-the thrust channel's peak sat 66 ms from the truth, and with a body-z drag fitted beside the thrust a
-physical 30 ms rotor delay vanished (found: 2 ms). The attitude loop is ten times faster, which makes
-aerodynamic torques move the torque channel's peak by little, and the fitted confounders take the rest.
-Its weakness is excitation: on gentle synthetic flights (0.5 % rotor-speed noise, 0.5 mrad attitude
-noise) the peak wandered by up to 30 ms, and the printed correlation does not flag it; on the measured
-Crazyflie flights (4-9 s each, livelier) the rpm stream's offset agrees to 2.3 ms (s.d.) across flights,
-and the PWM stream's exceeds it by 30 ms, the motors' response, 3 ms from that response measured
-between the two on-board streams alone.
+Each on-board stream (gyro; rotors, through the roll and pitch torque channel) is compared with what the
+motion-capture trajectory says it should have been, and the offset is the lag at which they agree best:
+``aligned(t) = logged(t + τ)`` (positive: the stream was stamped late).  The channels, why the torque and not
+the thrust, and the limits: docs/ingest.md "Time offsets between the streams".
 """
 
 from __future__ import annotations

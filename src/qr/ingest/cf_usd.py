@@ -1,15 +1,9 @@
-"""Crazyflie uSD-card binary log (format version 2), as in ../shared/data/imrclab-crazyflie.
+"""Crazyflie uSD-card binary log (format version 2, as the data's SOURCE.md describes it: event types, then
+records up to a trailing CRC32), as in ../shared/data/imrclab-crazyflie.
 
-Layout (SOURCE.md there): magic 0xBC, uint16 version, uint16 number of event
-types; per type uint16 id, name\\0, uint16 number of variables, 'name(t)\\0' each
-(struct codes); then records (uint16 id, uint64 µs time stamp, packed values)
-up to a trailing CRC32 (zlib) of everything before it.  Little-endian.
-
-The canonical flight takes its rows from the motion-capture pose ``estPose``
-(``locSrv.*``, stamped on the vehicle's clock) and interpolates the 500 Hz block
-(rotor ``rpm``, gyro, accelerometer, battery) onto those stamps.  ``read_fast`` gives the 500 Hz block
-itself on the same clock, in SI units, with what the canonical flight leaves out: the on-board state
-estimate, the motor commands and the controller's own log (``ctrlLee.*``), which ``qr replay`` reads.
+The canonical flight's rows are the motion-capture pose ``estPose`` with the 500 Hz block (``rpm``, gyro,
+accelerometer, battery) interpolated onto them; ``read_fast`` gives the 500 Hz block itself in SI units with
+the on-board estimate, the motor commands and the controller's log (``ctrlLee.*``) that ``qr replay`` reads.
 """
 
 from __future__ import annotations

@@ -1,17 +1,7 @@
-"""ROS 1 bags and ROS 2 bags (sqlite3 or MCAP) with ``rosbags``: topics chosen by message type.
-
-- Pose: ``geometry_msgs/PoseStamped`` or ``nav_msgs/Odometry`` (its pose).
-- Rotor speeds: ``mav_msgs/Actuators`` (``angular_velocities``, rad/s; the RotorS / PX4-ROS convention),
-  or a numeric array named with ``--topic rotors=/name`` (``std_msgs/Float64MultiArray`` or
-  ``Float32MultiArray``, rad/s, stamped by the bag's receive time: it has no header).
-- IMU (optional): ``sensor_msgs/Imu`` angular velocity (rad/s) and linear acceleration (m/s², specific
-  force).
-
-ROS's frames (REP 103: world ENU, body x forward, y left, z up) are qr's own: nothing is converted.
-Every stream is stamped by its header (receive time without one) and interpolated onto the pose stamps,
-the attitude by slerp. Where a bag holds several candidate topics of a kind, ``--topic KIND=/name``
-(``pose``, ``rotors``, ``imu``) chooses; unknown message types (``mav_msgs`` is not in ROS's standard
-set) are read from the bag's own definitions where it stores them, else from the definition below.
+"""ROS 1 bags and ROS 2 bags (sqlite3 or MCAP) with ``rosbags``: topics chosen by message type
+(pose, rotor speeds, IMU; ``--topic KIND=/name`` chooses among several), in ROS's frames (REP 103), which are
+qr's own.  Every stream stamped by its header and interpolated onto the pose stamps.  The message types
+read: docs/ingest.md.
 """
 
 from __future__ import annotations

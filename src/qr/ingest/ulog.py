@@ -1,20 +1,9 @@
 """PX4 ULog (``pyulog``): a PX4 flight in the canonical frames and units.
 
-- Pose: ``vehicle_mocap_odometry`` or ``vehicle_visual_odometry`` (external motion capture or vision:
-  position and attitude in one message) where logged; else ``vehicle_local_position`` (x, y, z) with
-  ``vehicle_attitude`` (q), EKF2's own estimate, which has already fused the IMU.
-- Rotor signals: ``esc_status`` (ESC telemetry, ``esc[i].esc_rpm``: rpm) where logged; else the
-  normalised motor commands, ``actuator_motors`` (``control[i]``, 0..1) or ``actuator_outputs``
-  (``output[i]``, PWM, scaled to 0..1 with ``PWM_MAIN_MINi``/``MAXi`` or ``PWM_MIN``/``PWM_MAX``), which the
-  vehicle's command map turns into rotor speeds (:func:`qr.ingest.commands_to_speeds`).
-  Motors keep PX4's numbering (u1 = motor 1): a PX4 vehicle file lists its rotors in that order.
-- IMU: ``sensor_combined`` gyro (rad/s) and accelerometer (m/s², specific force); ``battery_status``
-  voltage as ``vbat``.
-
-PX4 is NED world / FRD body; :func:`qr.frames.from_ned_frd` converts (the one place). Stamps are the
-pose stream's (the autopilot clock, every topic on it), from its first sample; the other streams are
-interpolated onto them (attitude by slerp), NaN outside their own span. ``attrs["sources"]`` names the
-topics used and ``attrs["rotor_input"]`` is ``"speed"`` or ``"command"``.
+The topics read (pose, rotor speeds or normalised motor commands, IMU, battery) and their order of preference:
+docs/ingest.md.  PX4 is NED world / FRD body (:func:`qr.frames.from_ned_frd` converts); stamps are the pose
+stream's, the other streams interpolated onto them; ``attrs["sources"]`` names the topics used and
+``attrs["rotor_input"]`` is ``"speed"`` or ``"command"``.
 """
 
 from __future__ import annotations

@@ -1,27 +1,8 @@
 """Multilayer perceptron on standardised inputs and outputs (thesis Chapter 4), in torch.
 
-``layers`` hidden layers of ``neurons`` units with ``activation`` in
-{linear, relu, tanh}, then a linear output layer (one output per axis).
-
-Training minimises ``mean squared error + weight_decay * sum ||W_l||^2``
-(standardised units, biases not penalised) full-batch with L-BFGS (strong
-Wolfe line search) or Adam, and stops early on the validation block: every
-``check_every`` iterations the validation error is measured, the best weights
-are kept, and training ends after ``patience`` checks without improvement.
-
-Why this stands in for the thesis's Bayesian regularisation (MATLAB
-``trainbr``): BR minimises ``F = beta E_D + alpha E_W``, i.e. the MAP estimate
-under a Gaussian weight prior, and re-estimates ``alpha/beta`` from the
-evidence.  Our objective is the same MAP objective with the ratio fixed by
-``weight_decay`` (``= alpha / (beta N k)``), and early stopping on held-out
-data limits the effective number of parameters the way the evidence update
-does (for a linear model, early-stopped gradient descent is approximately ridge
-regression with ``lambda ~ 1 / (learning rate * iterations)``).  What we give
-up is BR's per-run tuning of ``alpha``; what we gain is a choice checked on
-data the fit never saw.
-
-Seeded and deterministic: weights are drawn from a private RNG stream, the
-data are never shuffled, one thread, float64.
+Full-batch L-BFGS (or Adam) on ``MSE + weight_decay Σ‖W‖²`` with early stopping on the validation block;
+why this stands in for the thesis's Bayesian regularisation (``trainbr``): docs/learn.md "Models".
+Seeded and deterministic: a private RNG stream, no shuffling, one thread, float64.
 """
 
 from __future__ import annotations

@@ -1,33 +1,7 @@
 """Gaussian-process regression, one GP per output axis (thesis Chapter 3), with scikit-learn kernels.
 
-Kernels (on standardised inputs, each ``sigma_f^2 * k + WhiteKernel``):
-``se_ard`` (squared exponential with one length scale per input, eq. 3.2),
-``matern32_ard``, ``matern52_ard`` and ``rq`` (rational quadratic; one length
-scale, scikit-learn has no ARD version).  Hyperparameters start from the
-data's standard deviations: length scales at each input's std (1 on the
-standardised scale), ``sigma_f^2`` at the variance of the residual the GP
-models, the noise at ``noise_init`` of it.
-
-Mean (``mean``): ``ridge`` fits ``beta_0 + beta^T x`` by ridge regression
-first and the GP models what is left (the thesis's basis ``h(x) = [1, x]``,
-eq. 3.3, estimated before rather than jointly with the GP); ``dot`` adds a
-``DotProduct`` (linear) kernel term instead; ``zero`` only removes the mean.
-
-Scaling up.  Hyperparameters maximise the exact marginal likelihood
-(scikit-learn's ``GaussianProcessRegressor``, L-BFGS-B to a relative
-tolerance ``opt_ftol``, ``restarts`` extra random starts) on at most
-``hyper_subset`` training samples, evenly spaced in time: at 100 Hz
-neighbouring samples are nearly copies of each other, so a thinned subset
-carries almost the same information about smoothness and noise (MATLAB's
-``fitrgp``, the thesis's tool, does the same "subset of data" above 2000
-points).  On 1500 samples this is the difference between ~1.5 s and ~30 s
-(``benchmarks/train.py``).  The posterior then uses every training sample: exactly up to
-``max_exact`` samples, and above that with the DTC / projected-process
-approximation on ``inducing`` inducing inputs (evenly spaced training inputs):
-``mean = K*m (s2 Kmm + Kmn Knm)^-1 Kmn y``, cost O(n m^2) in chunks, so 100k
-samples take minutes (Quinonero-Candela & Rasmussen 2005).  Predictive
-standard deviations include the noise, so the 95 % band is for a new
-measured label.
+Kernels, mean, the hyperparameters' thinned subset (``hyper_subset``) and the DTC posterior above
+``max_exact`` samples: docs/learn.md "Models".
 """
 
 from __future__ import annotations

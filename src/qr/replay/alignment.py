@@ -1,19 +1,10 @@
 """When the trajectory started on the log's clock, where, and the controller's mass parameter: found from
 the flight (none of them is logged).
 
-From the motor commands (``from_thrust``): the commands through the firmware's PWM model give the
-controller's collective thrust ``T``.  The controller's thrust law, ``T = m F_d · (R e3)`` with
-``F_d = a_d + g e3 + Kd (v_d − v) + Kp (o + r(t) − p)`` (``r`` the trajectory from its start point, ``o``
-the start point), is linear in ``m`` and ``m o`` for a given start time: those by least squares, the start
-time by a one-dimensional search of the residual.  On the IMRCLab flights this finds the documented mass
-parameter (0.0444 kg) and height (0.75 m) of the payload flights; the start point from the logged position
-instead sits 6–9 cm low and 40–80 ms late (the vehicle's steady height error and tracking lag).
-
-From the position alone (``from_position``, a log without commands): start time and point by least squares
-of the logged position on the trajectory: biased by the tracking lag and the steady error (said so).
-
-The uncertainty of the start time is half the difference between the start times the two halves of the
-flight give (each half searched alone).
+``from_thrust``: the controller's thrust law through the firmware's PWM model is linear in ``m`` and ``m o`` for a
+given start time (least squares; the start time by a 1-D search).  ``from_position`` (a log without commands):
+biased by the tracking lag and the steady error (said so).  The start time's uncertainty is half the
+difference between the two halves' start times.  Measured on the IMRCLab flights: docs/replay.md.
 """
 
 from __future__ import annotations

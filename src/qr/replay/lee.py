@@ -1,28 +1,7 @@
 """The Crazyflie firmware's Lee controller (``controller_lee.c``: Lee, Leok & McClamroch, CDC 2010) as the
-IMRCLab flights flew it, written from its equations.
-
-Position loop (world frame; ``e_p = clip(p_d − p, ±Kpos_P_limit)``, ``e_v = clip(v_d − v, ±Kpos_D_limit)``,
-``i_p += dt e_p``)::
-
-    F_d = a_d + g e3 + Kpos_D e_v + Kpos_P e_p + Kpos_I i_p
-    T   = m F_d · (R e3)                      (collective thrust, N; both integrals reset while T < 0.01 N)
-    z_d = F_d / |F_d|,  y_d = (z_d × x_c) / |…|,  x_d = y_d × z_d,  R_d = [x_d y_d z_d]
-
-with ``x_c = (cos ψ, sin ψ, 0)``.  Desired body rate from the setpoint's jerk ``j`` (``h = (m / T)(j −
-(z_d·j) z_d)``): ``ω_d = (−h·y_d, h·x_d, ψ̇ z_d·e3)``.  Attitude loop (``e_R = ½ vee(R_dᵀR − RᵀR_d)``,
-``ω_r = RᵀR_d ω_d``, ``i_R += dt e_R``)::
-
-    τ = −KR e_R − Kω (ω − ω_r) − KI i_R + ω × Jω
-
-Which version: the payload flights log the controller's references and outputs beside the state it used,
-and they identify this one.  The structure is bitcraze/crazyflie-firmware's (Hönig 2019: R_d from the thrust
-direction, ω_d from the jerk, no ω̇_d feed-forward); IMRCLab's later rewrite (R_d from y_c × F_d, ω̇_d from
-the snap, a −J(ω × ω_r − RᵀR_d ω̇_d) term) misses the logged yaw reference by 0.012 rad RMS and the logged
-yaw torque by 2.8× its spread, this structure by 0.0003 rad and 1.4 %.  The gains are IMRCLab's fork's
-defaults (``conf/controller/lee.yaml``), which a least-squares fit of the logged torques returns to 0.3 %;
-``mass`` is the ``ctrlLee.mass`` parameter.  The firmware computes in float32 at 500 Hz; this in float64.
-Fed the logged state and references, this reproduces the logged thrust and torques
-(tests/replay/test_lee_firmware.py; docs/replay.md states the RMS and what is left).
+IMRCLab flights flew it, written from its equations: the position and attitude loops, which firmware version
+and why, and how well it reproduces the logged thrust and torques: docs/replay.md "The controller as the
+firmware computes it" (tests/replay/test_lee_firmware.py).
 """
 
 from __future__ import annotations

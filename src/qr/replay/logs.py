@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import QrInputError
-from ..flight import POSITION, QUATERNION, ROTORS
+from ..flight import POSITION, QUATERNION
 
 COMMANDS = ["cmd1", "cmd2", "cmd3", "cmd4"]
 
@@ -110,7 +110,3 @@ def read_replay_log(path, vehicle) -> ReplayLog:
             truth = path.parent / "truth.parquet"
             return ReplayLog(str(path), pose, None, synth, pd.read_parquet(truth) if truth.exists() else None)
     return ReplayLog(str(path), pose)
-
-
-def logged_rotor_speeds(log: ReplayLog) -> np.ndarray:
-    return log.pose[ROTORS].to_numpy(float)

@@ -1,23 +1,6 @@
 """Between the controller and the rotors: the Crazyflie firmware's power distribution, or the vehicle's
-inverse rotor map; then the motor map from command to rotor speed.
-
-``crazyflie`` (``power_distribution_quadrotor.c``, force-torque mode), written from its equations: with
-``a = arm_length / √2`` and ``k = thrust_to_torque``, the per-motor forces (N) of the Crazyflie X (M1
-front-right, then clockwise seen from above: the vehicle files' numbering)::
-
-    f1 = T/4 − τx/(4a) − τy/(4a) − τz/(4k)      f2 = T/4 − τx/(4a) + τy/(4a) + τz/(4k)
-    f3 = T/4 + τx/(4a) + τy/(4a) − τz/(4k)      f4 = T/4 + τx/(4a) − τy/(4a) + τz/(4k)
-
-each below 0 set to 0; the PWM duty (0..1) of the firmware's model, f in grams per motor, v the battery
-voltage (V): ``pwm = d00 + d10 f + d01 v + d20 f² + d11 f v``; the largest duty above 1 lowers all four by
-the excess (the firmware's cap: it keeps the torques at the cost of thrust), then each at least 0.
-The payload flights log the controller's thrust and torques beside the PWM: these equations give the
-logged PWM to 9e-6 (half a 16-bit step) with the payload README's d-values.
-
-The motor map ``pwm -> rotor speed`` is the motor's, not the firmware's: ``fit`` takes it from the flight
-(per rotor ``u = a + b pwm``, least squares of the logged rotor speeds on the commands passed through the
-vehicle's first-order motor response), ``firmware`` assumes the firmware's model is right (the rotor speed
-at which the vehicle's C_T gives the force the firmware asked for).
+inverse rotor map; then the motor map from command to rotor speed (``fit`` from the flight, or ``firmware``).
+The firmware's equations and how well they give the logged PWM: docs/replay.md.
 """
 
 from __future__ import annotations
@@ -70,10 +53,6 @@ class CrazyflieMixer:
     arm_length: float
     thrust_to_torque: float
     pwm: PwmModel
-
-    def forces(self, thrust, torque) -> np.ndarray:
-        """Per-motor forces (N, before clipping) of collective thrust (N) and torques (N m): (…, 4)."""
-        return _forces(float(thrust), np.asarray(torque, float), self.arm_length, self.thrust_to_torque)
 
     def duties(self, thrust, torque, vbat: float = 0.0) -> np.ndarray:
         return _duties(float(thrust), np.asarray(torque, float), self.arm_length, self.thrust_to_torque,
@@ -160,9 +139,3 @@ def fit_motor_map(t, duties, speeds, tau_s: float) -> MotorMap:
         res.append(speeds[ok, i] - A @ c)
     rms = float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
     return MotorMap("fit", tuple(a), tuple(b), rms, float(tau_s))
-
-
-def mixer_from_dict(d: dict) -> CrazyflieMixer:
-    pwm = d["pwm"]
-    return CrazyflieMixer(float(d["arm_length"]), float(d["thrust_to_torque"]),
-                          PwmModel(**{k: float(v) for k, v in pwm.items()}))

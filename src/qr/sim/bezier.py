@@ -1,24 +1,8 @@
 """The thesis's reference trajectory (eqs. 5.3-5.5): cubic Bezier segments through waypoints.
 
-Each segment runs from waypoint ``p_k`` to ``p_{k+1}`` with the control points of
-eq. 5.4, ``P1 = p_k + v_k`` and ``P2 = p_{k+1} - v_{k+1}``, so consecutive
-segments share the tangent at their common waypoint (C1).  The curve is the
-cubic Bezier
-
-    B(s) = (1-s)^3 P0 + 3 (1-s)^2 s P1 + 3 (1-s) s^2 P2 + s^3 P3,   s in [0, 1].
-
-Eq. 5.5 leaves out the binomial coefficients 3: its weights do not sum to one
-(at s = 1/2 they sum to 1/2), so its curve sags towards the origin between the
-waypoints and its end tangents are not the ones eq. 5.4 sets up.  We use the
-correct Bernstein form; then ``B'(0) = 3 v_k`` and ``B'(1) = 3 v_{k+1}``: the
-curve leaves and enters each waypoint along the given tangent.
-
-Time scaling: segment ``k`` takes ``segment_duration_s`` (scalar or one per
-segment), ``s = (t - t_k) / T_k``, so ``v = B'(s) / T_k`` and ``a = B''(s) / T_k^2``.
-Position, velocity and acceleration are analytic at any time (the controller
-runs at >= 500 Hz); ``sample`` gives the thesis's table of 1000 points per segment.
-Yaw is the heading of the horizontal velocity (``yaw: heading``) or constant
-(``yaw: fixed``); its rate is the analytic ``(v_x a_y - v_y a_x) / |v_h|^2``.
+The correct Bernstein form (eq. 5.5 leaves out the binomial coefficients 3: docs/simulate.md "What we
+corrected in the thesis"), each segment taking ``segment_duration_s``; position, velocity, acceleration and
+the yaw (``heading`` or ``fixed``) and its rate are analytic at any time.
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
-"""Controllers: LQR on the double integrator (thesis eqs. 5.6-5.12) and a PD attitude loop.
-
-High level: ``a_des = a_ref + K (x_ref - x)`` with ``x = [p, v]`` and ``K`` from the
-continuous-time algebraic Riccati equation (scipy).  A disturbance estimate
-enters as an acceleration offset (the thesis's "with ANN model" controller):
-``a_cmd = a_des - R f_est / m``.
-
-Low level: the thrust vector ``m (a_cmd - g)`` fixes the desired body z axis and
-the thrust (projected on the current body z); the reference yaw completes the
-desired attitude; a PD law on SO(3) with gyroscopic cancellation gives the
-torques; the inverse rotor map gives rotor speeds within the vehicle's limits.
-The controller only knows the NOMINAL vehicle.
+"""Controllers: LQR on the double integrator (thesis eqs. 5.6-5.12) and a PD attitude loop on SO(3) with
+gyroscopic cancellation; a disturbance estimate enters as ``a_cmd = a_des - R f_est / m``.  The controller
+only knows the NOMINAL vehicle.  docs/simulate.md.
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
-"""Disturbance-force models for the simulation study: one small interface, several adapters.
+"""Disturbance-force models for the simulation study: ``model.predict(signals) -> (N, 3)``, the unmodelled
+body-frame force ``f_a`` (eq. 4.34) the study injects into the plant and the compensated controller cancels.
 
-A force model maps body-frame signals to the unmodelled force ``f_a`` (N, body
-frame, eq. 4.34) the nominal model misses::
-
-    model.predict(signals) -> (N, 3)
-
-It is what the study injects into the plant (``f_ext`` of ``plant.rk4_step``)
-and what the compensated controller adds to its LQR acceleration command.
-
-Adapters
-- :class:`LinearForce`: ``f_a = W x + b`` on named input groups (the thesis's
-  collapsed linear networks, eq. 4.35); :func:`thesis_model8` is eq. 4.38.
-- :class:`CatalogForce`: the force part of catalog effects (``qr.effects``);
-  :func:`extended_vehicle` reads the extended vehicle ``qr diagnose`` writes.
-- :class:`LearnedForce`: a model saved by the learning stage (``qr.models.load``).
-- :func:`fit_linear` / :func:`fit_effects`: least-squares stand-ins for a learned
-  model / an identified physical model, fitted on an identification flight.
+Adapters: :class:`LinearForce` (``W x + b``, eq. 4.35; :func:`thesis_model8`, eq. 4.38), :class:`CatalogForce`
+(catalog effects; :func:`extended_vehicle`), :class:`LearnedForce` (``qr.models.load``), and the fitted
+stand-ins :func:`fit_linear` / :func:`fit_effects`.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
-"""The rigid-body plant shared by ``qr synth`` and the simulation study.
-
-RK4 with first-order rotor dynamics ``u̇ = (u_cmd - u) / τ_m``; the quaternion is
-renormalised after every step.  Catalog effects act in this TRUE plant through
-their physics (true mass and inertia, scaled rotor thrust, a delayed rotor
-map, a displaced tracked point, added forces and torques), never through the
-catalog's own formulas, so tests comparing residuals with the catalog terms
-check two independent derivations.
-
-State ``x`` and parameters ``P``: the slots of :mod:`qr.plant_state` (``x``: ``p`` (world, CG), ``v`` (world),
-``q`` (scalar first), ``ω`` (body), ``u`` (rotor speeds in the vehicle unit)).  Kernels are
-compiled with numba: a 90 s flight at 1 kHz takes well under a second.
+"""The rigid-body plant shared by ``qr synth``, the simulation study, the rollout and the replay: RK4 with
+first-order rotor dynamics, the quaternion renormalised after every step; catalog effects act through their
+physics (true mass and inertia, scaled thrust, delayed rotor map, displaced tracked point, added wrench),
+never through the catalog's own formulas, so tests comparing the two check independent derivations.
+State and parameters: the slots of :mod:`qr.plant_state`; compiled with numba.
 """
 
 from __future__ import annotations

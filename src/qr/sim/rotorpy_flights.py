@@ -1,18 +1,9 @@
 """Flights simulated by RotorPy (an independent simulator qr did not write), as canonical flight logs.
 
-RotorPy's own ``Multirotor`` (its aerodynamics on or off), flown by its own ``SE3Control`` along its
-own trajectories, logged like a motion-capture system and rotor-speed sensors would (qr's synthetic
-noise, :func:`qr.sim.synth.add_noise`).  The rotor speeds logged are the rotors' own (after RotorPy's
-motor lag), as a real log has them.  For the diagnosis tests and ``benchmarks/rotorpy.py``; needs the
-test extra (``rotorpy``).
-
-The expected diagnosis of such a flight goes through the export's mapping (:mod:`qr.export.rotorpy`)
-read backwards: RotorPy's rotor drag ``k_d`` (its H-force at each hub, with the hub's airspeed) is qr's
-``rotor_drag`` and ``rotor_drag_moment``, one ``k`` (the vehicle file in rad/s); its translational lift
-``k_h`` is ``translational_lift`` ``k``; its flapping ``k_flap`` is ``blade_flapping`` ``k = -k_flap
-Σω_hover``; its parasitic drag ``c_D`` is ``quadratic_drag`` ``c``.  RotorPy's induced-inflow drag ``k_z``
-(vertical, ``-k_z Σω v_z``) is qr's ``linear_drag`` ``kz = k_z Σω_hover`` (at hover rotor speed); its
-moments at the hubs (a roll/pitch-rate damping ``-k_z Σ ω_i y_i² ω_x``, …) have no catalog term.
+RotorPy's own ``Multirotor`` flown by its own ``SE3Control``, logged with qr's synthetic noise
+(:func:`qr.sim.synth.add_noise`); for the diagnosis tests and ``benchmarks/rotorpy.py`` (the test extra
+``rotorpy``).  The expected diagnosis reads the export's mapping backwards (``k_d``, ``k_h``, ``k_flap``,
+``c_D``, ``k_z``): docs/export.md "RotorPy's flights, diagnosed by qr".
 """
 
 from __future__ import annotations

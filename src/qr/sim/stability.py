@@ -1,33 +1,6 @@
-"""Stability of a plant whose force model takes the body acceleration as input (thesis §5.3.1).
-
-A linear model ``f_a = W_v v_b + W_a a_b + ... + b`` evaluated with the
-acceleration of the previous step (the thesis's simulation, eq. 5.13) makes
-velocity and acceleration a discrete-time system; at hover (``R = I``) its
-matrix is eq. 5.15::
-
-    M_{v,a} = [[I, dt I], [W_v / m, W_a / m]]
-
-and the run diverges when an eigenvalue has ``|λ| > 1``.  Because
-``det(λ I - M) = det((λ - 1)(λ I - W_a/m) - dt W_v/m)``, a model whose ``W_v``
-and ``W_a`` act axis by axis has, per axis, the two roots of
-``λ² - (1 + a) λ + (a - dt v) = 0`` (``a = W_a,ii / m``, ``v = W_v,ii / m``):
-with small ``dt`` one near 1 and one near ``a``.
-
-Reading eq. 5.16: for small ``dt`` three eigenvalues are always ≈ 1 (velocity
-integrating acceleration); the other three are ≈ ``eig(W_a / m)``.  The thesis's
-values say ``W_a / m`` has 1.58 ± 0.14i and ≈ 1.00.
-
-What the thesis did not say: |λ| > 1 is a property of that explicit, one-step-lagged
-evaluation.  The physical reading solves ``m a_b = F + W_a a_b`` for a consistent
-acceleration, i.e. the vehicle behaves as if its mass matrix were ``m I - W_a``;
-it is unstable under the position controller only when that matrix is not
-positive (an eigenvalue of ``W_a / m`` with real part >= 1) and ill-posed when it
-is singular.  A model fitted to labels computed from ``a_b`` itself (eq. 4.34)
-is pulled towards ``W_a = m I``, the label's own definition, the more so the
-noisier ``a_b`` is (eig(W_a/m) 0.15-0.33 at 0.1 m/s² of noise, 0.93-0.97 at 1 m/s²);
-there ``m I - W_a`` vanishes and the model carries no force information at all:
-the leak, not the integration scheme, is the root problem.  The study reports both readings and
-runs both closed loops.
+"""Stability of a plant whose force model takes the body acceleration as input (thesis §5.3.1):
+the eigenvalues of M_{v,a} (eq. 5.15) of the lagged evaluation (eq. 5.13), and the physical reading (mass
+matrix ``m I - W_a``); why both readings are reported: docs/simulate.md "Stability", "What we corrected in the thesis".
 """
 
 from __future__ import annotations

@@ -1,22 +1,9 @@
 """Closed-loop tracking study (thesis Chapter 5): nominal vs compensated vs oracle controller.
 
-One closed loop (:func:`fly`): the shared TRUE plant (``plant.rk4_step``) with
-catalog effects acting through their physics and, optionally, a force model
-injected as a body force held over each step; the LQR + PD controller of
-``control.py`` knowing only the NOMINAL vehicle.  The controller's acceleration
-command gets ``a_comp = -R f_est / m`` (m a = m g + R T e3 + R f_a, so this
-cancels the predicted force), where ``f_est`` is
-
-- nothing: the nominal controller (thesis Fig. 5.2);
-- a force model's prediction from the current state, the measured rotor speeds
-  and the last measured acceleration: the compensated controller (Fig. 5.3);
-- the true ``f_a`` the plant produces at the current state and rotor speeds:
-  the oracle, the best any force model can do with this controller.
-
-A run is bounded (fixed number of steps) and stops at the first sign of
-divergence (non-finite state, position error, speed or acceleration beyond the
-limits) with a message and ``status = "diverged"``; metrics then cover the
-part flown, so tables never hold NaN.
+One closed loop (:func:`fly`): the shared TRUE plant with the catalog's effects, flown by the LQR + PD
+controller knowing only the NOMINAL vehicle, its acceleration command compensated by ``-R f_est / m``
+(nothing, a force model's prediction, or the true ``f_a``: the oracle).  A run stops at the first sign of
+divergence (``status = "diverged"``; metrics over the part flown).  docs/simulate.md.
 """
 
 from __future__ import annotations

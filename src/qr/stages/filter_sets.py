@@ -1,5 +1,4 @@
-"""The workflow's filter jobs (workflow/rules/filter.smk) and the filter from Python with Hydra overrides
-(:func:`run_with_overrides`): a set's flights filtered in batches, one MLflow run
+"""The workflow's filter jobs (workflow/rules/filter.smk): a set's flights filtered in batches, one MLflow run
 per flight logged from one process, the NIS table of all flights, and the filtered-vs-raw figures."""
 
 from __future__ import annotations
@@ -14,14 +13,6 @@ from ..config import compose, to_dict
 from ..intake import read_reports
 from ..shipped import vehicle_file as find_vehicle
 from .filter import run_filter, track_filter
-
-
-def run_with_overrides(flight_path, vehicle_file, out, nis_out, overrides=(), name=None, track=True,
-                       crossfit_out=None) -> dict:
-    """Compose the Hydra config with ``overrides`` (``['filter=auto']``) and run :func:`run_filter`."""
-    cfg = to_dict(compose(list(overrides)))
-    return run_filter(flight_path, vehicle_file or find_vehicle(cfg["vehicle"]), out, nis_out, cfg["filter"], name,
-                      track=track, crossfit_out=crossfit_out)
 
 
 def run_batch(flights, vehicle_file, outs, nis_outs, crossfit_outs, names, overrides=()) -> None:

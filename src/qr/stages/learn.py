@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from ..models.training import Training, apply_row, check, document, mlflow_model, outcome, run, tracked_metrics
-from .sweep_callback import PARENT_FILE
+from .sweep_callback import parent_id
 
 STAGE = "learn"
 LEARN_KEYS = ("target", "inputs", "dataset", "vehicle", "row")  # the group `learn` (conf/learn/), logged as params
@@ -67,9 +67,7 @@ def _main(cfg) -> float:
     hc = HydraConfig.get()
     plain, sweep = OmegaConf.to_container(cfg, resolve=True), hc.mode.name == "MULTIRUN"
     out = Path(plain["learn"].get("out") or (hc.sweep.dir if sweep else hc.run.dir))  # learn.out, else Hydra's
-    parent = out / PARENT_FILE
-    t = run_learn(plain, out, job_name(plain, int(hc.job.num) if sweep else None),
-                  parent.read_text().strip() if sweep and parent.exists() else None)
+    t = run_learn(plain, out, job_name(plain, int(hc.job.num) if sweep else None), parent_id(out) if sweep else None)
     lead = f"\n{t.name} ({' '.join(hc.overrides.task)})" if sweep else t.name  # a job's own line, beside the bar
     print(f"{lead}: {outcome(t)}, {t.scores.train_time_s:.2f} s", file=sys.stderr)
     return t.scores.rmse

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from ..errors import QrInputError
 from .learn_residual import compose, run_residual
-from .sweep_callback import PARENT_FILE, SweepCallback
+from .sweep_callback import PARENT_FILE, SweepCallback, parent_id
 
 JOB = __name__.rsplit(".", 1)[-1]  # Hydra's job name for the sweeps' jobs (the task's module, :func:`_job`)
 SWEEP_CSV = "sweep.csv"
@@ -104,10 +104,8 @@ def _job(cfg) -> float:
     learn = cfg.learn
     out = Path(learn.out)
     name = f"job{int(hc.job.num)}"
-    parent = out / PARENT_FILE
-    parent_id = parent.read_text().strip() if parent.exists() else None
     doc = run_residual(list(learn.flights), learn.vehicle, out / name, force=bool(learn.force), cfg=cfg,
-                       run_name=name, parent_id=parent_id)
+                       run_name=name, parent_id=parent_id(out))
     return float(min(e["val_loss"] for e in doc["loss_per_epoch"]))
 
 
@@ -138,39 +136,25 @@ def collect(out, since: float = 0.0) -> "pd.DataFrame":  # noqa: F821
     return pd.DataFrame(rows)
 
 
-def _is_mine(config) -> bool:
-    try:
-        return config.hydra.job.name == JOB
-    except Exception:
-        return False
-
-
 class ResidualSweep(SweepCallback):
     """A ``qr learn residual -m`` multirun: one MLflow parent run, ``OUTDIR/sweep.csv`` at the end (the job
     with the lowest validation loss tagged; never chosen on held-out flights: none are read)."""
 
+    JOB = JOB
+
     def reset(self) -> None:
         super().reset()
-        self._run = None
         self._started = 0.0
 
     def on_multirun_start(self, config, **kwargs) -> None:
-        if not _is_mine(config):
+        if not self.mine(config):
             return
-        import atexit
-
-        from .. import tracking
-        from ..atomic import write_text
-
         self._started = time.time()
         out = Path(config.learn.out)
         out.mkdir(parents=True, exist_ok=True)
-        params = {"sweep": f"residual {out.name}", "overrides": " ".join(config.hydra.overrides.task)}
-        self._cm = tracking.run("learn", params["sweep"], config=params,
-                                tags={"qr.sweep": params["sweep"], "qr.parent": "true", "qr.kind": "residual"})
-        self._run = self._cm.__enter__()
-        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
-        atexit.register(self._close, RuntimeError("a job of the sweep failed"))
+        name = f"residual {out.name}"
+        params = {"sweep": name, "overrides": " ".join(config.hydra.overrides.task)}
+        self._open(out, name, params, {"qr.kind": "residual"})
 
     def on_multirun_end(self, config, **kwargs) -> None:
         if self._cm is None:

@@ -3,16 +3,13 @@
 sweep's best run (:func:`collect`, :func:`best`, :func:`copy_best`: rule ``learn_best``) and a flight set's
 learning table (:func:`build_dataset`: rule ``learn_dataset``).
 
-``LearnSweep`` acts only for multiruns of the stage (Hydra job name ``learn``).  At the start it opens the
-parent run and writes its id to ``<out>/.mlflow_parent`` where every job (in this process or a joblib worker)
-finds it; at the end it collects ``<out>/runs/*.json`` into ``<out>/runs.csv``, logs the best run that does
-not leak its target, and closes the parent.  If a job fails, Hydra never calls the end hook: the parent is
-then closed FAILED at exit and ``runs.csv`` is not written, so a workflow rule waiting for it fails too.
+``LearnSweep`` acts only for multiruns of the stage (Hydra job name ``learn``); at the end it collects
+``<out>/runs/*.json`` into ``<out>/runs.csv`` and logs the best run that does not leak its target.  If a job
+fails, ``runs.csv`` is not written, so a workflow rule waiting for it fails too.
 """
 
 from __future__ import annotations
 
-import atexit
 import json
 import math
 import threading
@@ -20,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..errors import QrInputError
-from .sweep_callback import PARENT_FILE, SweepCallback
+from .sweep_callback import SweepCallback
 
 if TYPE_CHECKING:  # pandas where a table is read or made
     import pandas as pd
@@ -69,13 +66,6 @@ def best(runs: pd.DataFrame) -> pd.Series | None:
     return None if ok.empty else ok.loc[ok["rmse"].idxmin()]
 
 
-def _is_learn(config) -> bool:
-    try:
-        return config.hydra.job.name == "learn"
-    except Exception:
-        return False
-
-
 def _out(config) -> Path:
     return Path(config.learn.out) if config.learn.get("out") else Path(config.hydra.sweep.dir)
 
@@ -118,16 +108,15 @@ class _Progress(threading.Thread):
 
 
 class LearnSweep(SweepCallback):
+    JOB = "learn"
+
     def reset(self) -> None:
         super().reset()
-        self._run = self._progress = None
+        self._progress = None
 
     def on_multirun_start(self, config, **kwargs) -> None:
-        if not _is_learn(config):
+        if not self.mine(config):
             return
-        from .. import tracking
-        from ..atomic import write_text
-
         out = _out(config)
         (out / "runs").mkdir(parents=True, exist_ok=True)
         for stale in (out / "runs").glob("*.json"):  # a rerun into the same directory starts clean
@@ -136,12 +125,9 @@ class LearnSweep(SweepCallback):
         name = (config.get("sweep") or {}).get("name") or f"sweep {out.name}"
         params = {"sweep": name, "overrides": " ".join(config.hydra.overrides.task),
                   "sweeper_params": {str(k): str(v) for k, v in (config.hydra.sweeper.get("params") or {}).items()}}
-        self._cm = tracking.run("learn", name, config=params, tags={"qr.sweep": name, "qr.parent": "true"})
-        self._run = self._cm.__enter__()
-        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
+        self._open(out, name, params)
         self._progress = _Progress(out / "runs", count_jobs(config), name)
         self._progress.start()
-        atexit.register(self._close, RuntimeError("a job of the sweep failed"))
 
     def on_multirun_end(self, config, **kwargs) -> None:
         if self._cm is None:
