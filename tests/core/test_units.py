@@ -116,6 +116,7 @@ def written(tmp_path_factory):
     from qr.estimation.plots import nis_figure
     from qr.report.overview import overview_html
     from qr.sim import figures as sim_figures
+    from qr.sim.stability import analyse
     from qr.sim.synth import SynthConfig, write_synth
     from qr.stages import filter_sets as filter_stage
     from qr.stages.diagnose import run_diagnosis
@@ -156,8 +157,8 @@ def written(tmp_path_factory):
         sim_figures.euler_figure(log, d / "sim_euler.png", "attitude")
         sim_figures.rmse_figure(pd.DataFrame({"source": ["a", "a"], "controller": ["nominal", "oracle"],
                                               "rmse": [0.01, 0.005], "status": ["ok", "ok"]}), d / "sim_rmse.png")
-        sim_figures.eigenvalue_figure({"nominal": {"eigenvalues": np.array([0.5 + 0.1j, 0.5 - 0.1j])}},
-                                      d / "sim_eigenvalues.png")
+        hover = analyse(np.diag([0.5, 0.5, 0.5]), np.zeros((3, 3)), 1.0, 0.01)  # a stable model's eigen-analysis
+        sim_figures.eigenvalue_figure({"nominal": hover}, d / "sim_eigenvalues.png")
         sim_figures.divergence_figure({"lagged": log, "implicit": log}, d / "sim_divergence.png", 3.0)
     finally:
         mp.undo()
