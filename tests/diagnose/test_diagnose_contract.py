@@ -99,7 +99,7 @@ def test_output_is_strict_json_and_qrs_marker_lists_every_file(diagnosed):
 
 def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkeypatch):
     import qr.estimation.crossfit
-    import qr.stages.diagnose
+    from qr.diagnose.diagnosis import Settings
 
     path = tmp_path / "short.csv"
     _flight(1400).to_csv(path, index=False)  # 14 s: too short for 5 folds of 2 s blocks
@@ -110,21 +110,21 @@ def test_the_override_an_error_suggests_works_after_out(tmp_path, capsys, monkey
     assert suggested, err
     # the suggestion, appended to the same command line, passes that check (and reaches the filter)
     seen = {}
-    compose = qr.stages.diagnose._compose
+    composed = Settings.composed
 
     def record(overrides):
-        seen["cfg"] = compose(overrides)
-        return seen["cfg"]
+        seen["settings"] = composed(overrides)
+        return seen["settings"]
 
     def stop(*a, **k):
         raise RuntimeError("reached the filter")
 
-    monkeypatch.setattr(qr.stages.diagnose, "_compose", record)
+    monkeypatch.setattr(Settings, "composed", staticmethod(record))
     monkeypatch.setattr(qr.estimation.crossfit, "prepare_flight", stop)
     with pytest.raises(RuntimeError, match="reached the filter"):
         run_cli(["diagnose", path, "--vehicle", HB, "--out", out, suggested[1], "filter=auto"], capsys)
-    assert seen["cfg"].diagnose.block_s == float(suggested[1].split("=")[1])
-    assert seen["cfg"].filter.name == "auto" and not out.exists()
+    assert seen["settings"].diagnose.block_s == float(suggested[1].split("=")[1])
+    assert seen["settings"].filter["name"] == "auto" and not out.exists()
 
 
 def test_anatomy_shares_only_what_is_above_the_noise_floor(monkeypatch):

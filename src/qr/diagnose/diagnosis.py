@@ -57,6 +57,13 @@ class Settings:
     filter: Group = field(default_factory=dict)  # the filter settings the estimates were made with (checked)
 
     @classmethod
+    def composed(cls, overrides) -> Settings:
+        """The settings ``qr diagnose`` runs with: the config tree with ``overrides``, every one checked."""
+        from ..config import compose_stage
+
+        return cls.of(compose_stage(list(overrides), "diagnose", "diagnose.horizon_s=2"))
+
+    @classmethod
     def of(cls, tree) -> Settings:
         """The settings of a composed config tree (:func:`qr.config.compose_stage`), every one checked."""
         given, filter_cfg = to_dict(tree.diagnose), to_dict(tree.filter)

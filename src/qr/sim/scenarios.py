@@ -214,7 +214,6 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
     (:func:`qr.diagnose.run`, as ``qr diagnose`` does, nothing written); the diagnosis document."""
     from pathlib import Path
 
-    from ..config import compose_stage
     from ..diagnose.diagnosis import Settings, run
     from ..diagnose.document import document
     from ..diagnose.flights import intake_settings, length_check
@@ -236,7 +235,7 @@ def diagnose_scenario(sc: Scenario, folder, duration: float = 60.0, rate: float 
     flight, vehicle_file = folder / "s" / "flight.csv", folder / "s" / "vehicle.yaml"
     with blas_one_thread():  # as the stage runs it: the same numbers
         nominal = load_vehicle(vehicle_file)
-        settings = Settings.of(compose_stage(list(overrides), "diagnose", "diagnose.horizon_s=2"))
+        settings = Settings.composed(overrides)
         taken = take([str(flight)], read_flights([flight]), nominal,
                      intake_settings(settings.diagnose, settings.filter), vehicle_file,
                      require=length_check(settings.diagnose, 1))

@@ -22,12 +22,6 @@ from ..vehicle import load_vehicle, save_vehicle
 OUTPUTS = ("diagnosis.json", "report.md", "extended_vehicle.yaml", "figures/")
 
 
-def _compose(overrides):
-    from ..config import compose_stage
-
-    return compose_stage(overrides, "diagnose", "diagnose.horizon_s=2")
-
-
 def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None, log=None,
                   return_result: bool = False, reports: list | None = None, figures: bool = True,
                   force: bool = False, estimates: list | None = None):
@@ -46,7 +40,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
         from ..diagnose.drawing import Drawing
         from ..diagnose.flights import intake_settings, length_check
 
-        settings = Settings.of(_compose(overrides))
+        settings = Settings.composed(overrides)
         with Drawing(veh) as drawing:
             taken = take([str(f) for f in flights], measured, veh, intake_settings(settings.diagnose, settings.filter),
                          vehicle, reports, estimates, say, length_check(settings.diagnose, len(flights)),
