@@ -12,7 +12,7 @@ from .segments import ROLLOUT_SPAN_S, FlightSegments, min_segment_s
 
 
 def intake_settings(ecfg: EvaluateConfig, filter_cfg: dict) -> IntakeSettings:
-    """A segment is used if it holds ``trim_s`` at each end and a rollout's span (:func:`qr.intake.min_segment_s`);
+    """A segment is used if it holds ``trim_s`` at each end and a rollout's span (:func:`qr.segments.min_segment_s`);
     the full estimate alone (a rollout's start states need no cross-fitting)."""
     return IntakeSettings(min_segment_s(ecfg.trim_s, ROLLOUT_SPAN_S), filter_cfg, tuple(ecfg.skip_checks),
                           "evaluate.skip_checks=[{name}] at the end of the command", halves=False)

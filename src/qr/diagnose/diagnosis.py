@@ -267,7 +267,7 @@ def _torque_remainder(final: Fit, extended: Vehicle, vehicle, flights: Flights, 
     return rem, extended.with_changes(torque_remainder=rem.in_vehicle(vehicle, note))
 
 
-def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[list[dict], list[dict]]:
+def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[list[FileFactor], list[FileFactor]]:
     """Statements about the vehicle file's own numbers (:func:`coefficient_checks`), from the parameters
     as diagnosis.json states them and the log's hover balance."""
     hover = hover_ratio(pd.concat(flights.measured, ignore_index=True), vehicle)

@@ -17,7 +17,7 @@ from .settings import DiagnoseConfig
 
 def intake_settings(cfg: DiagnoseConfig, filter_cfg: dict) -> IntakeSettings:
     """A segment is used if it holds ``trim_s`` at each end and one cross-validation block
-    (:func:`qr.intake.min_segment_s`)."""
+    (:func:`qr.segments.min_segment_s`)."""
     return IntakeSettings(min_segment_s(cfg.trim_s, cfg.block_s), filter_cfg, tuple(cfg.skip_checks),
                           "diagnose.skip_checks=[{name}] at the end of the command")
 

@@ -9,15 +9,13 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-from ..config import Group
-
 
 @dataclass(frozen=True)
 class FilterRun:
     """One flight filtered."""
 
     states: pd.DataFrame  # the state table (qr.states)
-    report: Group  # the NIS report (``.nis.json``): filter, NIS, noise, the tuning record, flight, config
+    report: dict  # the NIS report as written to ``.nis.json``: filter, NIS, noise, the tuning record, flight, config
     seconds: float  # wall-clock time of the tuning and the filters (the MLflow run's metric; in no file)
     crossfit: pd.DataFrame | None  # every airborne segment's estimates (:func:`.crossfit.segment_estimates`)
 
