@@ -24,6 +24,15 @@ def workers() -> int:
     return max(1, int(numba.get_num_threads()))
 
 
+def torch_one_thread(torch) -> None:
+    """Set torch to one thread, for good.  numba's first parallel call launches its OpenMP pool, which sets
+    the thread count torch shares with it (one libgomp) back to numba's: torch then trained its small
+    nets on 2 threads, 5x the wall on loaded cores (docs/learn.md, "Batch size, and the threads").  The
+    pool is launched first (:func:`workers` does), so a later parallel call leaves the count alone."""
+    workers()
+    torch.set_num_threads(1)
+
+
 def thread_map(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     """``[fn(x) for x in items]``, on up to :func:`workers` threads, in order; the first error raised."""
     items = list(items)

@@ -240,6 +240,7 @@ class Trained:
     windows: dict  # counts of training and validation windows
     wall_s: float
     skipped_steps: int = 0  # batches whose loss or gradient was not finite (not stepped)
+    threads: int = 1  # torch's threads during the epochs (the most seen at an epoch's end)
 
 
 def _reference(pieces: list[Piece], vehicle, H: int) -> np.ndarray:
@@ -292,12 +293,13 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
 
     import torch
 
+    from .parallel import torch_one_thread
     from .rollout_torch import DTYPE
     from .sim.plant import true_params
 
     threads = torch.get_num_threads()
     deterministic = torch.are_deterministic_algorithms_enabled()
-    torch.set_num_threads(1)  # small nets: one thread is faster, and the order of every sum is fixed
+    torch_one_thread(torch)  # small nets: one thread is faster, and the order of every sum is fixed
     torch.use_deterministic_algorithms(True)
     t_start = time.perf_counter()
     try:
@@ -324,7 +326,7 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
             best = math.inf
         opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         gen = torch.Generator().manual_seed(seed)
-        history, stopped = [], f"the epoch limit ({cfg.epochs})"
+        history, stopped, threads_seen = [], f"the epoch limit ({cfg.epochs})", 1
         clock = time.perf_counter
         for epoch in range(1, cfg.epochs + 1):
             t0 = clock()
@@ -357,6 +359,7 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
             spent["validation_s"] = clock() - t5
             history.append({"epoch": epoch, "train_loss": total / max(n, 1), "val_loss": val,
                             "seconds": clock() - t0, **spent})
+            threads_seen = max(threads_seen, torch.get_num_threads())
             if on_epoch:
                 on_epoch(history[-1])
             log(f"epoch {epoch}: training loss {history[-1]['train_loss']:.4f}, validation {val:.4f}")
@@ -369,7 +372,8 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
                     break
         net.load_state_dict(best_state)
         return Trained(net, history, best_epoch, stopped, dict(zip(QUANTITIES, ref_np.tolist())), initial,
-                       {"train": len(train_b), "val": len(val_b)}, time.perf_counter() - t_start, skipped)
+                       {"train": len(train_b), "val": len(val_b)}, time.perf_counter() - t_start, skipped,
+                       threads_seen)
     finally:
         torch.set_num_threads(threads)
         torch.use_deterministic_algorithms(deterministic)

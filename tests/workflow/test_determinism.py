@@ -111,3 +111,15 @@ def test_the_generalization_table_holds_the_repeat_split_and_a_fold_that_trained
     training = json.loads((fold / "residual" / "training.json").read_text())
     assert not set(training["flights"]["training"] + training["flights"]["validation"]) & set(split["test"])
     assert training["config"]["evaluate"]["split"]["kind"] == "speed"  # the split it was trained under
+
+
+def test_every_residual_trained_on_one_torch_thread(clean):
+    """The rules' trainings read their estimates from the filter stage's files, so numba's OpenMP pool was
+    first launched inside the training, which set torch's thread count back to numba's: 2 threads, 5x the
+    wall on loaded cores (qr.parallel.torch_one_thread).  Each training.json records the threads seen."""
+    import json
+
+    files = sorted(clean.rglob("training.json"))
+    assert any("learn" in f.parts for f in files) and any("generalization" in f.parts for f in files), files
+    for f in files:
+        assert json.loads(f.read_text())["software"]["threads"] == 1, f

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import QrInputError
+from ..parallel import torch_one_thread
 from .base import Model, Scaler, check_xy, meta_of
 
 ACTIVATIONS = ("linear", "relu", "tanh")
@@ -27,7 +28,7 @@ def _torch():
     import torch
 
     if not _READY:
-        torch.set_num_threads(1)
+        torch_one_thread(torch)
         torch.optim.LBFGS([torch.zeros(1, requires_grad=True)])
         _READY = True
     return torch

@@ -45,7 +45,7 @@ def document(r: ResidualTraining) -> dict:
                        "models": {"vehicle": "the vehicle without the residual", "hybrid": "with the residual",
                                   "rate_frozen": "the benchmark's physics baseline (qr evaluate's reference)"}},
         "config": r.settings.given,
-        "software": {"torch": torch.__version__, "threads": 1},
+        "software": {"torch": torch.__version__, "threads": t.threads},
         "residual_size": r.size.record(),
         **({"ensemble": {
             "members": rcfg.members, "file": BANDS_FILE, "scale": r.ensemble.scale,
