@@ -7,6 +7,15 @@ from __future__ import annotations
 import math
 
 import numba as nb
+import numpy as np
+
+
+def kernel_array(a) -> np.ndarray:
+    """``a`` as the one array type the compiled kernels are given: float64, C order, writable (copied only
+    if it is not).  numba compiles a kernel once per argument type, and a frame read from Parquet hands out
+    read-only, Fortran-ordered columns where a built one hands out C-ordered ones: each kind was a further
+    compilation of the same kernel (seconds each, in every fresh checkout).  The values are the same."""
+    return np.require(a, np.float64, ("C", "W"))
 
 
 @nb.njit(cache=True)

@@ -28,6 +28,7 @@ from .allowed import check_fields, check_known, setting
 from .estimation.settings import DIAGNOSIS_FILTER
 from .frames_compiled import quat_angle
 from .holdout import SplitConfig
+from .linalg_compiled import kernel_array
 from .plant_state import N_P, N_RB, P_DELAY, P_MARKER, X_POS, X_QUAT, X_RATE, X_VEL
 from .sim.plant import cg_from_tracked, rigid_body_rk4, rotor_speed_change, tracked_pv, true_params
 from .states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
@@ -205,8 +206,9 @@ def windows(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_inpu
     tp = np.where(np.isfinite(tp).all(axis=1, keepdims=True), tp, np.nan)
     U, run = _held(measured[ROTORS].to_numpy(float))
     ok = starts_allowed(run, horizon, max_input_gap, keep) & np.isfinite(X0).all(axis=1)
-    return Windows(states["t"].to_numpy(float), X0, U, ok, tp, tq, states[VELOCITY].to_numpy(float),
-                   states[RATE].to_numpy(float))
+    t, X0, tp, tq, tv, tw = (kernel_array(a) for a in (states["t"].to_numpy(float), X0, tp, tq,
+                                                       states[VELOCITY].to_numpy(float), states[RATE].to_numpy(float)))
+    return Windows(t, X0, U, ok, tp, tq, tv, tw)
 
 
 def score(states: pd.DataFrame, measured: pd.DataFrame, horizon: int, max_input_gap: int,

@@ -179,16 +179,17 @@ def filter_fast(t, quat_meas, q, r, discretisation="thesis", smooth=False, reset
     covariance blocks (N, 2, 3, 3), :class:`Innovations` and the restart flags.
     """
     from . import fast
+    from ..linalg_compiled import kernel_array
 
     valid = np.all(np.isfinite(quat_meas), axis=1)
     quat0, psi0, P0 = initial(quat_meas[int(np.argmax(valid))], r)
     qd = np.broadcast_to(np.asarray(q, dtype=float), (3,)).copy()
     exact = discretisation == "exact"
     reset = -1.0 if reset_deg is None else float(np.radians(reset_deg))
-    zg = np.zeros((len(t), 3)) if gyro is None else np.asarray(gyro, dtype=float)
+    zg = np.zeros((len(t), 3)) if gyro is None else kernel_array(gyro)
     gvalid = np.zeros(len(t), dtype=bool) if gyro is None else np.all(np.isfinite(zg), axis=1)
-    QT, PSI, Ps, V, Bl, nis, logdet, resets = fast.eskf_forward(t, quat_meas, valid, qd, float(r), exact, quat0, psi0,
-                                                                P0, smooth, reset, zg, gvalid,
+    QT, PSI, Ps, V, Bl, nis, logdet, resets = fast.eskf_forward(t, kernel_array(quat_meas), valid, qd, float(r), exact,
+                                                                quat0, psi0, P0, smooth, reset, zg, gvalid,
                                                                 float(r_gyro or 1.0))
     if smooth:
         fast.eskf_smooth(t, QT, PSI, Ps, qd, exact, equilibration(Ps), resets)

@@ -24,6 +24,7 @@ def _smooth(t, y, q, r, discretisation):
     (order 4, the same as the position filter and the attitude ESKF's per-axis chain).  Columns with
     the same dropouts share one covariance recursion (one compiled pass for all four rotors)."""
     from . import fast
+    from ..linalg_compiled import kernel_array
 
     out, rate = np.full_like(y, np.nan), np.full_like(y, np.nan)
     valid = np.isfinite(y)
@@ -37,8 +38,8 @@ def _smooth(t, y, q, r, discretisation):
             continue
         x0 = np.zeros((len(cols), ORDER["position"]))
         x0[:, 0] = y[int(np.argmax(ok)), cols]
-        X, _, Ps, _, _ = fast.chain_forward(t, y[:, cols], ok, float(q), float(r), discretisation == "exact",
-                                            x0, P0, True)
+        X, _, Ps, _, _ = fast.chain_forward(t, kernel_array(y[:, cols]), ok, float(q), float(r),
+                                            discretisation == "exact", x0, P0, True)
         fast.chain_smooth(t, X, Ps, float(q), discretisation == "exact", equilibration(Ps))
         out[:, cols], rate[:, cols] = X[:, :, 0], X[:, :, 1]
     return out, rate

@@ -56,6 +56,7 @@ def filter_reference(t, u_meas, q, r, discretisation="thesis", smooth=False, spe
 def filter_fast(t, u_meas, q, r, discretisation="thesis", smooth=False, speed_scale=None):
     """Compiled equivalent of :func:`filter_reference`: rotors with the same dropouts share one covariance."""
     from . import fast
+    from ..linalg_compiled import kernel_array
 
     N, c = u_meas.shape
     X, V = np.empty((N, c, 3)), np.empty((N, c, 3))
@@ -76,8 +77,8 @@ def filter_fast(t, u_meas, q, r, discretisation="thesis", smooth=False, speed_sc
                 X[:, i], V[:, i], nis[:, i], logdet[:, i] = Xi[:, 0], Vi[:, 0], inn.nis[:, 0], inn.logdet[:, 0]
             continue
         x0 = np.column_stack([u0, np.zeros((len(cols), 2))])
-        Xg, Vg, Ps, nisg, logS = fast.chain_forward(t, u_meas[:, cols], ok, float(q), float(r), exact, x0, P0s[0],
-                                                    smooth)
+        Xg, Vg, Ps, nisg, logS = fast.chain_forward(t, kernel_array(u_meas[:, cols]), ok, float(q), float(r), exact, x0,
+                                                    P0s[0], smooth)
         if smooth:
             fast.chain_smooth(t, Xg, Ps, float(q), exact, equilibration(Ps))
             Vg = np.einsum("nii->ni", Ps)

@@ -49,12 +49,13 @@ def filter_reference(t, p_meas, q, r, discretisation="thesis", smooth=False, pro
 def filter_fast(t, p_meas, q, r, discretisation="thesis", smooth=False):
     """Compiled equivalent of :func:`filter_reference`: the three axes share one 4×4 covariance."""
     from . import fast
+    from ..linalg_compiled import kernel_array
     from .nis import Innovations
 
     valid = np.all(np.isfinite(p_meas), axis=1)
     x0, P0 = initial(p_meas[int(np.argmax(valid))], r)
     exact = discretisation == "exact"
-    X, V, Ps, nis, logS = fast.chain_forward(t, p_meas, valid, float(q), float(r), exact,
+    X, V, Ps, nis, logS = fast.chain_forward(t, kernel_array(p_meas), valid, float(q), float(r), exact,
                                              x0.reshape(4, 3).T.copy(), P0[::3, ::3].copy(), smooth)
     if smooth:
         fast.chain_smooth(t, X, Ps, float(q), exact, equilibration(Ps))
