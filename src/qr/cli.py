@@ -72,6 +72,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"qr {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
+    for add in (_add_ingest, _add_synth, _add_summary, _add_flight_commands, _add_export):
+        add(sub)
+    for name, (_, help) in HYDRA_STAGES.items():  # listed here, parsed by Hydra (_parse)
+        sub.add_parser(name, help=help, add_help=False)
+    p.commands = sub.choices  # name -> subparser (for _parse)
+    return p
+
+
+def _add_ingest(sub) -> None:
+    """``qr ingest``: a raw log to a canonical flight."""
     s = sub.add_parser("ingest", help="raw log -> canonical flight", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="examples:\n  qr ingest LOG --vehicle conf/vehicle/crazyflie21_brushless.yaml "
                               "--out flight.csv\n  qr ingest px4_export.csv --vehicle my_px4.yaml --frame ned-frd "
@@ -95,6 +105,9 @@ def _parser() -> argparse.ArgumentParser:
                         "enu-flu: position, velocity vx..vz if present, attitude, gyro and accelerometer "
                         "(docs/ingest.md). A PX4 ULog is converted without it")
 
+
+def _add_synth(sub) -> None:
+    """``qr synth``: a synthetic flight with hidden effects."""
     s = sub.add_parser("synth", help="synthetic flight with hidden effects",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr synth --vehicle conf/vehicle/asctec_hummingbird.yaml --duration 60 "
@@ -124,6 +137,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="--controller lee: a crazyswarm trajectory CSV (e.g. figure8.csv), flown from (0, 0, 1) m")
     s.add_argument("--timescale", type=float, default=1.0, help="--controller lee: the trajectory's time scale")
 
+
+def _add_summary(sub) -> None:
+    """``qr summary``: a table of ingested flights."""
     s = sub.add_parser("summary", help="table of ingested flights", formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog="example:\n  qr summary results/ingest/brushless/*.parquet "
                               "--vehicle conf/vehicle/crazyflie21_brushless.yaml --out summary.csv\n"
@@ -134,6 +150,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="CSV (a Markdown twin is written beside it); never an existing file")
     s.add_argument("--force", action="store_true", help="replace existing --out files")
 
+
+def _add_flight_commands(sub) -> None:
+    """The commands that read flights and a vehicle file: diagnose, evaluate, replay."""
     _flights_command(sub, "diagnose", "name what the nominal model gets wrong (docs/spec/diagnosis.md)",
                      "examples:\n  qr diagnose flight.csv --vehicle vehicle.yaml --out diag\n"
                      "  qr diagnose a.csv b.csv --vehicle v.yaml --out diag diagnose.horizon_s=0.5 filter=auto\n"
@@ -159,6 +178,10 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--controller", required=True, metavar="lee|rotorpy_se3|MODULE:CLASS",
                    help="the controller the vehicle flew: lee (the Crazyflie firmware's), rotorpy_se3, or your class "
                         "(qr.replay.controller.Controller)")
+
+
+def _add_export(sub) -> None:
+    """``qr export``: a vehicle for a simulator."""
     s = sub.add_parser("export", help="a vehicle for RotorPy, PX4 + Gazebo Sim or MuJoCo (docs/spec/export.md)",
                        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXPORT_EPILOG)
     s.add_argument("vehicle", metavar="VEHICLE.yaml", help="vehicle YAML: nominal, extended or hybrid (as qr "
@@ -166,10 +189,6 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--to", required=True, metavar="rotorpy|px4-gz|mujoco", help="the simulator")
     s.add_argument("--out", required=True, help=OUT_DIR_HELP)
     s.add_argument("--force", action="store_true", help=FORCE_HELP)
-    for name, (_, help) in HYDRA_STAGES.items():  # listed here, parsed by Hydra (_parse)
-        sub.add_parser(name, help=help, add_help=False)
-    p.commands = sub.choices  # name -> subparser (for _parse)
-    return p
 
 
 # qr <stage> [HYDRA ARGS]: the stage's own Hydra entry point (overrides, -m sweeps, --help, --cfg job)

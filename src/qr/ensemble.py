@@ -9,11 +9,23 @@ files (``members/``, ``hybrid_vehicle.bands.json``): docs/evaluate.md "Bands: ho
 from __future__ import annotations
 
 import math
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+import time
 from collections import Counter
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from . import residual as rs
+from .atomic import atomic_path, write_json
+from .errors import QrInputError
 
 if TYPE_CHECKING:
     from .bands import Scale
@@ -26,9 +38,9 @@ START = ("warm: each member fine-tuned from the trained network on its resample 
 
 @dataclass(frozen=True)
 class Member:
-    residual: object  # qr.residual.Residual
+    residual: rs.Residual
     seed: int
-    flights: dict  # flight -> times drawn
+    flights: Mapping[str, int]  # flight -> times drawn
     best_epoch: int
     epochs_run: int = 0
 
@@ -60,8 +72,6 @@ PARALLEL_FROM_S = 30.0  # learn.member_jobs=0 trains members serially when they 
 def jobs(setting: int, members: int, estimate_s: float = math.inf) -> int:
     """Processes for ``members`` members: ``learn.member_jobs``; 0: min(2, cores), or 1 when the members'
     serial time (``estimate_s``) is under :data:`PARALLEL_FROM_S`.  The members' bytes do not depend on it."""
-    import os
-
     n = setting or (min(2, os.cpu_count() or 1) if estimate_s >= PARALLEL_FROM_S else 1)
     return max(1, min(n, members))
 
@@ -72,11 +82,6 @@ THREADS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
 def worker(inputs: str, folder: str, ks: str) -> None:
     """A member process (:func:`train_members` starts it with one thread each): the members ``ks``
     (comma-separated, 0-based) from the pickled ``inputs``, each written to ``folder/member<k>.pickle``."""
-    import pickle
-    from pathlib import Path
-
-    from .atomic import atomic_path
-
     work = pickle.loads(Path(inputs).read_bytes())
     for k in map(int, ks.split(",")):
         with atomic_path(Path(folder) / f"member{k}.pickle") as tmp:  # appears whole or not at all
@@ -85,9 +90,8 @@ def worker(inputs: str, folder: str, ks: str) -> None:
 
 def _member(k: int, w: dict):
     """Member ``k`` (0-based) from the inputs ``w``: a :class:`Member`, or the error's parts."""
-    import torch
+    import torch  # (heavy: the member processes and the trainer only)
 
-    from .errors import QrInputError
     from .residual_fit import train
 
     draw = resample(w["training"], w["seed"], k)
@@ -104,8 +108,6 @@ def train_members(cfg, start, parts: list, training: list[str], seed: int, membe
     """``members`` residuals fine-tuned from ``start`` (the vehicle with the trained residual), each on the
     ``training`` flights resampled by flight (see the module doc), and the processes that trained them
     (:func:`jobs`; ``epoch_s``: the network's seconds per epoch, for the estimate)."""
-    import pickle
-
     n = jobs(cfg.member_jobs, members, epoch_s * cfg.member_epochs * members)
     payload = pickle.dumps({"cfg": replace(cfg, epochs=cfg.member_epochs), "start": start, "parts": parts,
                             "training": training, "seed": seed}, protocol=pickle.HIGHEST_PROTOCOL)
@@ -116,19 +118,10 @@ def train_members(cfg, start, parts: list, training: list[str], seed: int, membe
         return [_done(_member(k, work), k, members, training, log) for k in range(members)], n
     # fresh interpreters (not multiprocessing: a spawned worker re-runs an unguarded main script, as Snakemake's
     # `script:` is), one thread each; the inputs and results go through files
-    import os
-    import subprocess
-    import sys
-    import tempfile
-    import time
-    from pathlib import Path
-
     src = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, **dict.fromkeys(THREADS_ENV, "1"),
            "PYTHONPATH": os.pathsep.join([src, *filter(None, [os.environ.get("PYTHONPATH")])])}
     code = "import sys; from qr.ensemble import worker; worker(*sys.argv[1:])"
-    from .atomic import atomic_path
-
     with tempfile.TemporaryDirectory(prefix="qr-members-") as d:
         folder = Path(d)
         with atomic_path(folder / "inputs.pickle") as tmp:
@@ -162,8 +155,6 @@ def train_members(cfg, start, parts: list, training: list[str], seed: int, membe
 
 
 def _done(r, k: int, members: int, training: list[str], log) -> Member:
-    from .errors import QrInputError
-
     if isinstance(r, tuple):
         raise QrInputError(r[1], f"ensemble member {k + 1}: {r[2]}", r[3])
     log(f"ensemble member {k + 1} of {members}: {sum(r.flights.values())} flights drawn ({len(r.flights)} distinct "
@@ -190,8 +181,6 @@ def calibrated(physical, centre, members: list[Member], parts: list, H: int) -> 
 
 def write(tmp, members: list[Member], scale, where: str, note: str, horizon: int) -> None:
     """``members/`` and ``hybrid_vehicle.bands.json`` into the folder ``tmp`` (being written atomically)."""
-    from . import residual as rs
-    from .atomic import write_json
     from .bands import SCHEMA
 
     (tmp / MEMBERS_DIR).mkdir()

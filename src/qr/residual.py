@@ -134,17 +134,17 @@ def rms_size(res: Residual, v_b, omega, g_b, u, flights) -> Size:
                 int(len(w)), tuple(str(f) for f in flights))
 
 
-def recorded_size(raw_block) -> dict | None:
+def recorded_size(raw_block) -> Size | None:
     """The block's ``size`` (:meth:`Size.record`) if it is one (a file from before the record has none)."""
     size = raw_block.get("size") if isinstance(raw_block, dict) else None
     try:
-        ok = (all(math.isfinite(float(size[k])) for k in ("rms_force", "rms_torque"))
-              and all(len(size[k]) == 3 and all(math.isfinite(float(x)) for x in size[k])
-                      for k in ("rms_force_xyz", "rms_torque_xyz"))
-              and isinstance(size["flights"], list) and int(size["samples"]) >= 0)
+        rms, xyz = [float(size[k]) for k in ("rms_force", "rms_torque")], \
+            [tuple(float(x) for x in size[k]) for k in ("rms_force_xyz", "rms_torque_xyz")]
+        ok = all(map(math.isfinite, rms)) and all(len(v) == 3 and all(map(math.isfinite, v)) for v in xyz) \
+            and isinstance(size["flights"], list) and int(size["samples"]) >= 0
     except (TypeError, KeyError, ValueError):
         return None
-    return size if ok else None
+    return Size(*rms, *xyz, int(size["samples"]), tuple(size["flights"])) if ok else None
 
 
 def weights_bytes(res: Residual) -> bytes:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, TypeAlias
 
 import numba as nb
 import numpy as np
@@ -265,7 +265,11 @@ def pool(parts: list[dict]) -> dict:
     return out
 
 
-def summary(sums: np.ndarray, counts: np.ndarray) -> dict:
+# the spec's block of one model (docs/spec/evaluate.md): quantity -> {"mae": per h, "simerr", "windows"}
+RolloutBlock: TypeAlias = "dict[str, dict]"
+
+
+def summary(sums: np.ndarray, counts: np.ndarray) -> RolloutBlock:
     """The spec's block per model: for each quantity the MAE per h (null where no window) and SimErr."""
     with np.errstate(invalid="ignore", divide="ignore"):
         mae = sums / counts

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from . import residual, torque_remainder
 from .allowed import is_number
 from .atomic import plain, write_text
 from .errors import QrInputError, warn
@@ -163,6 +164,42 @@ def _layout_entry(path, i, r):
 def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = False) -> Vehicle:
     """A validated vehicle; ``quiet``: no warnings (a vehicle derived from one already loaded)."""
     warn_ = (lambda *a: None) if quiet else warn
+    _check_required(path, raw)
+    raw = dict(raw)
+    mass = _number(path, raw, "mass")
+    ct = _number(path, raw, "thrust_coeff")
+    cq = _number(path, raw, "torque_coeff")
+    arm = _number(path, raw, "arm_length") if "arm_length" in raw else None
+    J = _inertia(path, raw["inertia"], warn_)
+    unit = raw["rotor_speed_unit"]
+    if not isinstance(unit, str) or unit not in SPEED_UNITS:
+        raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
+                           f"use one of {', '.join(SPEED_UNITS)}")
+    layout = raw["layout"]
+    rotors = _rotor_map(path, layout, arm, ct, cq)
+    _check_optional_numbers(path, raw, rotors)
+    _check_rotor_input(path, raw, warn_)
+    _check_rotor_properties(path, raw, len(layout) if isinstance(layout, list) else 4)
+    unknown = sorted(set(map(str, raw)) - KNOWN)
+    if unknown:
+        near = {k: c for k in unknown if (c := _near(k, KNOWN - set(raw)))}
+        fix = "; ".join(f"'{k}' is probably '{c}'" for k, c in near.items())
+        warn_(path, f"vehicle file has unknown key(s) {unknown} (ignored)",
+              (fix + ": correct the spelling" if near else "remove them or check their spelling"))
+    vehicle = Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
+    if raw.get("effects") is not None:
+        from .effects import validate_effect_list
+        # all parameters given, numbers, and within what this vehicle can physically have
+        raw["effects"] = validate_effect_list(raw["effects"], path, vehicle)
+    if raw.get("torque_remainder") is not None:
+        raw["torque_remainder"] = torque_remainder.validate(raw["torque_remainder"], path)
+    if raw.get("residual") is not None:
+        vehicle.residual = residual.load(raw["residual"], path)
+    return vehicle
+
+
+def _check_required(path, raw) -> None:
+    """A mapping with every required key (``arm_length`` too for a named layout), else the keys it lacks."""
     if not isinstance(raw, dict):
         raise QrInputError(path, "vehicle file is not a YAML mapping",
                            "write 'key: value' lines as in docs/spec/flight-log.md")
@@ -173,12 +210,10 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
         hints = [f"'{k}'" + (f" (found {c!r})" if (c := _near(k, raw)) else "") for k in missing]
         raise QrInputError(path, f"vehicle file lacks key(s) {', '.join(hints)}",
                            "add them as in docs/spec/flight-log.md")
-    raw = dict(raw)
-    mass = _number(path, raw, "mass")
-    ct = _number(path, raw, "thrust_coeff")
-    cq = _number(path, raw, "torque_coeff")
-    arm = _number(path, raw, "arm_length") if "arm_length" in raw else None
-    inertia = raw["inertia"]
+
+
+def _inertia(path, inertia, warn_) -> np.ndarray:
+    """The principal inertias: three positive numbers (a warning where they break the triangle inequality)."""
     if not (isinstance(inertia, (list, tuple)) and len(inertia) == 3):
         raise QrInputError(path, f"vehicle key 'inertia' is {inertia!r}, not three numbers",
                            "give the diagonal [Jxx, Jyy, Jzz] in kg m^2")
@@ -198,11 +233,11 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
                  "use measured principal inertias; for a symmetric quadrotor Jzz is at most Jxx + Jyy "
                  "(the thesis's Table 4.1 value is such an error)")
             break
-    unit = raw["rotor_speed_unit"]
-    if not isinstance(unit, str) or unit not in SPEED_UNITS:
-        raise QrInputError(path, f"rotor_speed_unit is {unit!r}",
-                           f"use one of {', '.join(SPEED_UNITS)}")
-    layout = raw["layout"]
+    return J
+
+
+def _rotor_map(path, layout, arm, ct, cq) -> RotorMap:
+    """The rotor map of a named layout or of four rotors, checked to control thrust, roll, pitch and yaw."""
     if not (isinstance(layout, str) and layout in LAYOUTS):
         if not isinstance(layout, list) or len(layout) != 4:
             raise QrInputError(path, f"layout is {layout!r}: neither {' nor '.join(map(repr, LAYOUTS))} nor a "
@@ -217,6 +252,11 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
     if abs(np.linalg.det(rotors.matrix)) < 1e-300 or np.linalg.matrix_rank(rotors.matrix) < 4:
         raise QrInputError(path, "layout gives a rotor map that cannot control thrust, roll, pitch and yaw",
                            "check rotor positions and yaw signs (two of each sign, not collinear)")
+    return rotors
+
+
+def _check_optional_numbers(path, raw: dict, rotors: RotorMap) -> None:
+    """The optional numeric keys: numbers in their ranges; ``hub_z`` within twice the largest rotor distance."""
     if "rotor_speed_max" in raw:
         _number(path, raw, "rotor_speed_max")
     for k in ("ground_z", "hub_z", "motor_time_constant", "rotor_speed_min"):
@@ -228,28 +268,6 @@ def vehicle_from_dict(raw: dict, path: str | Path | None = None, quiet: bool = F
             raise QrInputError(path, f"hub_z is {raw['hub_z']!r} m, more than twice the largest rotor distance "
                                      f"({arm_max:g} m) from the CG",
                                "give the hubs' height above the CG in metres (0 when they sit in the CG's plane)")
-    _check_rotor_input(path, raw, warn_)
-    _check_rotor_properties(path, raw, len(layout) if isinstance(layout, list) else 4)
-    unknown = sorted(set(map(str, raw)) - KNOWN)
-    if unknown:
-        near = {k: c for k in unknown if (c := _near(k, KNOWN - set(raw)))}
-        fix = "; ".join(f"'{k}' is probably '{c}'" for k, c in near.items())
-        warn_(path, f"vehicle file has unknown key(s) {unknown} (ignored)",
-              (fix + ": correct the spelling" if near else "remove them or check their spelling"))
-    vehicle = Vehicle(str(raw["name"]), mass, J, rotors, unit, raw)
-    if raw.get("effects") is not None:
-        from .effects import validate_effect_list
-        # all parameters given, numbers, and within what this vehicle can physically have
-        raw["effects"] = validate_effect_list(raw["effects"], path, vehicle)
-    if raw.get("torque_remainder") is not None:
-        from .torque_remainder import validate
-
-        raw["torque_remainder"] = validate(raw["torque_remainder"], path)
-    if raw.get("residual") is not None:
-        from .residual import load
-
-        vehicle.residual = load(raw["residual"], path)
-    return vehicle
 
 
 def _check_rotor_properties(path, raw: dict, n: int) -> None:
@@ -337,9 +355,7 @@ def _read_yaml(path: Path, chain: tuple = ()) -> dict:
     if raw is None:
         raise QrInputError(path, "vehicle file is empty", "write the keys of docs/spec/flight-log.md")
     if isinstance(raw, dict) and "residual" in raw:  # its model file: relative to the file that names it
-        from .residual import absolute
-
-        raw["residual"] = absolute(raw["residual"], path.parent)
+        raw["residual"] = residual.absolute(raw["residual"], path.parent)
     if isinstance(raw, dict) and "extends" in raw:
         base_name = raw["extends"]
         if not isinstance(base_name, str) or not base_name.strip():
@@ -374,9 +390,7 @@ def save_vehicle(vehicle: Vehicle | dict, path: str | Path, header: str | None =
     raw = vehicle.to_dict() if isinstance(vehicle, Vehicle) else dict(vehicle)
     raw.pop("extends", None)
     if "residual" in raw:  # its model file, as seen from where this file goes
-        from .residual import relative
-
-        raw["residual"] = relative(raw["residual"], Path(path).parent)
+        raw["residual"] = residual.relative(raw["residual"], Path(path).parent)
     text = yaml.safe_dump(plain(raw), sort_keys=False, default_flow_style=None)
     if header:
         text = "".join(f"# {line}\n" for line in header.splitlines()) + text

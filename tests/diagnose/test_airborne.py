@@ -249,7 +249,7 @@ def test_a_time_gap_splits_the_flight_and_nothing_straddles_it(drag_flight):
     assert prep.t[prep.train].min() >= 0.5 and prep.t[prep.test].max() <= 39.5  # trim_s at segment ends
     assert not ((prep.t > 19.49) & (prep.t < 22.5)).any()  # ... and at the gap's two sides
     for key in ("nominal", "extended"):  # no replay window runs across the gap
-        err = res.replay[key]["errors"]
+        err = getattr(res.replay, key).errors
         span = err.groupby("window")["t"].agg(["min", "max"])
         assert ((span["max"] < 20) | (span["min"] >= 22)).all()
     assert np.isfinite(doc["nominal"]["force_rmse"] + doc["extended"]["force_rmse"]).all()

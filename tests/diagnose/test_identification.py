@@ -167,8 +167,8 @@ def test_torque_rows_that_need_a_c_t_error_beyond_any_plausible_one_cannot_arbit
     t = BlockStats(np.ones((4, 1, 1)), np.full((4, 1), -0.8), np.ones(4), np.ones(4), Columns.of(["thrust_gain"]),
                    lb, ub)
     arb = torque_arbitration((f, t))
-    assert arb["thrust_gain"]["force_rows"] == pytest.approx([0.96])
-    assert arb["thrust_gain"]["torque_rows"] == pytest.approx([0.2], abs=1e-6)
+    assert arb["thrust_gain"].force_rows == pytest.approx([0.96])
+    assert arb["thrust_gain"].torque_rows == pytest.approx([0.2], abs=1e-6)
     assert torque_arbitration((f, f)) == {}
 
 

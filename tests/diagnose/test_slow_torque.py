@@ -38,27 +38,27 @@ def test_a_slope_well_above_noise_is_named_with_the_least_squares_s_e():
     out = slow_inertia(x, y, block, nb, BOUNDS, folds=5, t_name=3.0, min_gain=0.05, n_boot=400, seed=1)
     se_ls = 1.0 / np.sqrt((x**2).sum(axis=0))  # independent rows: the textbook s.e. of a slope
     for a, o in enumerate(out):
-        assert o["estimate"] == pytest.approx(k[a], abs=3 * se_ls[a])
-        assert o["stderr"] == pytest.approx(se_ls[a], rel=0.3)
-    assert [o["named"] for o in out] == [True, False, True]
+        assert o.estimate == pytest.approx(k[a], abs=3 * se_ls[a])
+        assert o.stderr == pytest.approx(se_ls[a], rel=0.3)
+    assert [o.named for o in out] == [True, False, True]
     # explained share of the summed residual: k² var(x) / (k² var(x) + 1) for the named axes
-    assert out[0]["cv_gain"] == pytest.approx(0.25 / 1.25, abs=0.03)
-    assert out[1]["why_not"].startswith("explains")
+    assert out[0].cv_gain == pytest.approx(0.25 / 1.25, abs=0.03)
+    assert out[1].why_not.startswith("explains")
 
 
 def test_an_axis_that_is_the_same_term_as_a_named_effect_is_not_tested():
     rng = np.random.default_rng(0)
     x, y, block, nb = _blocks(rng, np.array([0.5, 0.5, 0.5]), 1.0)
     out = slow_inertia(x, y, block, nb, BOUNDS, 5, 3.0, 0.05, 100, 1, skip={2: "the term of yaw_torque_gain"})
-    assert [o["named"] for o in out] == [True, True, False]
-    assert out[2]["why_not"] == "the term of yaw_torque_gain" and "estimate" not in out[2]
+    assert [o.named for o in out] == [True, True, False]
+    assert out[2].why_not == "the term of yaw_torque_gain" and out[2].estimate is None
 
 
 def test_an_estimate_outside_the_plausible_range_is_not_named():
     rng = np.random.default_rng(0)
     x, y, block, nb = _blocks(rng, np.array([0.5, 0.5, 0.5]), 1.0)
     out = slow_inertia(x, y, block, nb, (np.full(3, -0.1), np.full(3, 0.1)), 5, 3.0, 0.05, 100, 1)
-    assert not any(o["named"] for o in out) and all("plausible" in o["why_not"] for o in out)
+    assert not any(o.named for o in out) and all("plausible" in o.why_not for o in out)
 
 
 @pytest.fixture(scope="module")
@@ -78,11 +78,11 @@ def test_a_hidden_inertia_error_is_recovered_from_the_summed_residual(hidden_ine
                              log=lambda m: None, return_result=True, figures=False)
     fp = res.labels.cross
     slow = slow_torque(fp, vehicle, fp.y, 50, 5, 3.0, 0.05, 200, 0)
-    roll, pitch, yaw = slow["axes"]
+    roll, pitch, yaw = slow.axes
     for o in (roll, pitch):
-        assert o["named"] and o["estimate"] == pytest.approx(0.0028, abs=3 * o["stderr"]), o
-        assert o["stderr"] < 0.0028 / 5
-    assert not yaw["named"] and "yaw_torque_gain" in yaw["why_not"], yaw  # never tested as an inertia
+        assert o.named and o.estimate == pytest.approx(0.0028, abs=3 * o.stderr), o
+        assert o.stderr < 0.0028 / 5
+    assert not yaw.named and "yaw_torque_gain" in yaw.why_not, yaw  # never tested as an inertia
     # the whole diagnosis names it (here the one-step selection already does)
     named = {e["name"]: e for e in doc["effects"]}
     assert "inertia_error" in named, doc["selection"]

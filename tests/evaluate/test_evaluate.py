@@ -191,8 +191,8 @@ def test_the_summed_share_sees_the_slow_error_a_rollout_integrates():
     fast = np.tile([1.0, -1.0, 1.0, -1.0, 1.0], 2)  # each segment: + - + - + (the edge: + then +)
     resid = np.column_stack([fast, np.full(n, 0.5)])
     r = summed_r2(prep, y, resid, 2)
-    assert r["one_step"] == pytest.approx([0.0, 0.75])
-    assert r["summed"] == pytest.approx([1.0, 0.75])
+    assert r.one_step == pytest.approx([0.0, 0.75])
+    assert r.summed == pytest.approx([1.0, 0.75])
 
 
 def test_the_rollout_sums_are_the_same_digits_on_one_thread_or_two(tmp_path):

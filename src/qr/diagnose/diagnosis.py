@@ -38,7 +38,7 @@ from .fit import Fit, NamedEffect, identify
 from .held_out import HeldOutCheck, check_held_out, held_out_support, summed_r2
 from .labels import Labels, make_labels
 from .remainder import Beyond, TorqueRemainder, fit_torque_remainder, remainder
-from .replay import replay_all, rollout_all
+from .replay import HeldOutRollout, Replays, replay_all, rollout_all
 from .settings import DiagnoseConfig
 
 if TYPE_CHECKING:  # (compiled kernels: imported where diagnose.refine=rollout asks for them)
@@ -95,8 +95,8 @@ class Diagnosis:
     fit: Fit  # the selection and what it names: parameters, s.e., held-out shares
     not_named: dict[str, str]  # effect -> why it is not named though the selection chose it
     held_out: HeldOutCheck  # the named model on the held-out part; misfit: the model does not describe it
-    replay: dict  # per model (nominal, extended): errors, summary at the horizon, growth
-    rollout: dict  # the multi-step rollout from the held-out starts, and the share of the residual explained
+    replay: Replays  # the open-loop replay of the nominal and the extended model
+    rollout: HeldOutRollout  # the multi-step rollout from the held-out starts, and the share of the residual explained
     remainder: Beyond  # structure beyond the catalog
     accelerometer: AccelerometerCheck | None  # the force label against the accelerometer, where the log has one
     vehicle_file: list[FileFactor]  # statements about the vehicle file's own numbers, where the data identify them
@@ -140,9 +140,9 @@ def _verdict(d: Diagnosis) -> str:
         found = "".join(f"Identified {_effect_said(e)}, which alone removes {percent(e.explained_fraction)} of the "
                         "held-out residual. " for e in d.effects)
         return (f"{found}The model does not describe this flight: even extended, the held-out residual is "
-                f"{100 * misfit['force_of_weight']:.0f} % of the weight in force and "
-                f"{100 * misfit['torque_of_weight_at_arm']:.0f} % of the weight's torque at the arm "
-                f"(a rigid-body model leaves under {100 * misfit['limit']:.0f} %), so "
+                f"{100 * misfit.force_of_weight:.0f} % of the weight in force and "
+                f"{100 * misfit.torque_of_weight_at_arm:.0f} % of the weight's torque at the arm "
+                f"(a rigid-body model leaves under {100 * misfit.limit:.0f} %), so "
                 + ("nothing else is named and nothing is written into the vehicle file. " if d.effects else
                    "nothing is named. ")
                 + "Look at the log's frames and units (the convention checks in diagnosis.json), its time stamps and "
@@ -282,7 +282,7 @@ def _vehicle_file(final: Fit, vehicle, vehicle_file, flights: Flights) -> tuple[
 
 
 def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, effects, hybrid, settings: Settings,
-                   say) -> tuple[dict, Beyond, AccelerometerCheck | None]:
+                   say) -> tuple[HeldOutRollout, Beyond, AccelerometerCheck | None]:
     """(rollout, structure beyond the catalog, accelerometer check).  The check for structure beyond the
     catalog (numpy) runs beside the rollout (compiled, the GIL released): neither reads what the other
     writes."""
@@ -290,10 +290,10 @@ def _after_the_fit(states, rows, vehicle, final: Fit, held_out: HeldOutCheck, ef
     with ThreadPoolExecutor(1) as pool:
         checked = pool.submit(remainder, final, vehicle, cfg)
         say("rolling out the nominal and the extended model on the held-out part")
-        rollout = rollout_all(states, rows, vehicle, effects, full.windows, ecfg.horizon, ecfg.max_input_gap, 0.0,
-                              hybrid)
         y_test = full.y[full.test]
-        rollout = {**rollout, "explained": summed_r2(full, y_test, y_test - held_out.prediction, ecfg.horizon)}
+        explained = summed_r2(full, y_test, y_test - held_out.prediction, ecfg.horizon)
+        rollout = rollout_all(states, rows, vehicle, effects, full.windows, ecfg.horizon, ecfg.max_input_gap, 0.0,
+                              explained, hybrid)
         accelerometer = accelerometer_check(states, rows, vehicle, cfg.trim_s)
         say("checking for structure beyond the catalog")
         return rollout, checked.result(), accelerometer

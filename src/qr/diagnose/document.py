@@ -10,6 +10,7 @@ from __future__ import annotations
 from ..atomic import finite_or_null
 from ..torque_remainder import FEATURES
 from .diagnosis import Diagnosis
+from .slow_torque import SlowBalance
 
 SCHEMA = "qr.diagnosis/1"
 # the noise floor: the filters' posterior covariance through the labels, calibrated per axis on the
@@ -33,11 +34,11 @@ def _clean(step: dict) -> dict:
     return out
 
 
-def _slow_json(slow: dict | None) -> dict | None:
-    if not slow:
+def _slow_json(slow: SlowBalance | None) -> dict | None:
+    if slow is None:
         return None
-    axes = [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in a.items()} for a in slow["axes"]]
-    return {**slow, "axes": axes}
+    axes = [{k: (float(f"{v:.4g}") if isinstance(v, float) else v) for k, v in a.record().items()} for a in slow.axes]
+    return {**slow.record(), "axes": axes}
 
 
 def _split(windows: list[dict]) -> dict:
@@ -47,16 +48,16 @@ def _split(windows: list[dict]) -> dict:
 
 
 def _replay(d: Diagnosis) -> dict:
-    rep_n, rep_e = d.replay["nominal"]["summary"], d.replay["extended"]["summary"]
+    rep_n, rep_e = d.replay.nominal.summary, d.replay.extended.summary
     return {
         "horizon_s": float(d.settings.given["horizon_s"]),
-        "nominal_position_rmse": float(f"{rep_n.get('position_rmse', float('nan')):.6g}"),
-        "extended_position_rmse": float(f"{rep_e.get('position_rmse', float('nan')):.6g}"),
-        "nominal_position_rmse_axes": _r(rep_n.get("position_rmse_axes", [])),
-        "extended_position_rmse_axes": _r(rep_e.get("position_rmse_axes", [])),
-        "nominal_attitude_rmse_deg": float(f"{rep_n.get('attitude_rmse_deg', float('nan')):.4g}"),
-        "extended_attitude_rmse_deg": float(f"{rep_e.get('attitude_rmse_deg', float('nan')):.4g}"),
-        "windows": rep_n.get("windows", 0),
+        "nominal_position_rmse": float(f"{rep_n.position_rmse:.6g}"),
+        "extended_position_rmse": float(f"{rep_e.position_rmse:.6g}"),
+        "nominal_position_rmse_axes": _r(rep_n.position_rmse_axes),
+        "extended_position_rmse_axes": _r(rep_e.position_rmse_axes),
+        "nominal_attitude_rmse_deg": float(f"{rep_n.attitude_rmse_deg:.4g}"),
+        "extended_attitude_rmse_deg": float(f"{rep_e.attitude_rmse_deg:.4g}"),
+        "windows": rep_n.windows,
     }
 
 
@@ -65,8 +66,8 @@ def _selection(d: Diagnosis) -> dict:
     return {"cv_loss_nominal": float(f"{sel.loss_nominal:.6g}"), "cv_loss_final": float(f"{sel.loss_final:.6g}"),
             "path": [_clean(s) for s in sel.path], "equivalent": [_clean(s) for s in sel.equivalent],
             "rejected": sel.rejected, "not_named": d.not_named,
-            "torque_arbitration": {k: {r: (_r(v, 4) if r != "given" else v) for r, v in a.items()}
-                                   for k, a in d.fit.arbitration.items()},
+            "torque_arbitration": {k: {"force_rows": _r(a.force_rows, 4), "torque_rows": _r(a.torque_rows, 4),
+                                       "given": a.given} for k, a in d.fit.arbitration.items()},
             "slow_torque": _slow_json(d.fit.slow)}
 
 
@@ -102,7 +103,7 @@ def stated(d: Diagnosis) -> dict:
         "effects": [e.stated() for e in d.effects],
         "extended": _axes(h.extended_rmse),
         "replay": _replay(d),
-        "rollout": d.rollout,
+        "rollout": d.rollout.record(),
         "noise_floor": {**_axes(h.noise_floor_rmse), "source": NOISE_SOURCE},
         "remainder": d.remainder.record(),
         "anatomy": {k: _r(v, 4) for k, v in h.anatomy.items()},
@@ -111,7 +112,7 @@ def stated(d: Diagnosis) -> dict:
         # the held-out residual's weighted mean square (noise-variance units) the verdict states
         "losses": {"nominal": float(f"{h.nominal_loss:.6g}"), "extended": float(f"{h.extended_loss:.6g}")},
         "described": d.described,
-        **({"misfit": {k: float(f"{v:.4g}") for k, v in h.misfit.items()}} if h.misfit else {}),
+        **({"misfit": {k: float(f"{v:.4g}") for k, v in h.misfit.record().items()}} if h.misfit else {}),
         "config": d.settings.given,
         "filter": d.settings.filter,
         "accelerometer_check": d.accelerometer.record() if d.accelerometer is not None else None,

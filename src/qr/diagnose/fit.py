@@ -10,6 +10,7 @@ one-step fit cannot see.  What the held-out part supports is the next step's (:m
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from ..effects import CATALOG
 from ..identification.bootstrap import bootstrap
 from ..identification.normal_equations import BlockStats, Columns, fit
-from ..identification.selection import ROWS, Selection, select, torque_arbitration
+from ..identification.selection import ROWS, Arbitration, Selection, select, torque_arbitration
 from . import slow_torque as slow_mod
 from .core import block_stats, extended_prediction, first_delay, refine_delay, to_parameters
 from .labels import Labels, Prepared, at_delay, exact_delay_term
@@ -56,7 +57,8 @@ class Fit:
     labels: Labels  # the labels, the designs reading the rotor map at the fitted delay
     candidates: list[str]
     selection: Selection
-    arbitration: dict  # effect -> force- and torque-row estimates, where the roll/pitch torque cannot arbitrate it
+    arbitration: Mapping[str, Arbitration]  # effect -> its force- and torque-row estimates, where the roll/pitch
+    # torque cannot arbitrate it
     named: list[str]
     theta: np.ndarray
     se: np.ndarray
@@ -64,9 +66,10 @@ class Fit:
     stats: BlockStats  # the training part's normal equations of the candidates
     boot_stats: BlockStats  # the bootstrap's (with a delay: the model linearised at its estimate)
     delay_first: float | None  # the first delay estimate (the exact map alone), where actuator_delay is a candidate
-    slow: dict | None = None  # the slow torque balance, where it ran
-    fixed: dict = field(default_factory=dict)  # effect -> (parameters, s.e.) from the slow balance, not the fit
-    explained: dict = field(default_factory=dict)  # effect -> its share of the held-out loss (.held_out)
+    slow: slow_mod.SlowBalance | None = None  # the slow torque balance, where it ran
+    # effect -> (parameters, s.e.) from the slow balance, not the fit
+    fixed: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    explained: Mapping[str, float] = field(default_factory=dict)  # effect -> its share of the held-out loss (.held_out)
 
     def refit(self, effects: list[str]) -> np.ndarray:
         """One-step fit of ``effects`` on the training part, the slow-balance parameters kept."""
@@ -144,11 +147,11 @@ def _slow_balance(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int, say) -> Fit:
     resid = cross.y - extended_prediction(cross, vehicle, f.named, f.theta, None, f.force_only)
     slow = slow_mod.slow_torque(cross, vehicle, resid, cfg.slow_torque_horizon, cfg.selection.folds,
                                 cfg.selection.t_name, cfg.slow_torque_min_gain, cfg.selection.bootstrap, seed)
-    if not slow["named"]:
+    if not slow.named:
         return replace(f, slow=slow)
-    ax = slow["axes"]
-    fixed = {slow_mod.EFFECT: (np.array([a["estimate"] if a["named"] else 0.0 for a in ax]),
-                               np.array([a["stderr"] if a["named"] else np.nan for a in ax]))}
+    ax = slow.axes
+    fixed = {slow_mod.EFFECT: (np.array([a.estimate if a.named else 0.0 for a in ax]),
+                               np.array([a.stderr if a.named else np.nan for a in ax]))}
     old = Columns.of(f.named)
     named = sorted(f.named + [slow_mod.EFFECT], key=list(CATALOG).index)
     new = Columns.of(named)

@@ -7,6 +7,7 @@ docs/diagnose.md "A flight the model does not describe".
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -38,18 +39,32 @@ def misfit_shares(resid: np.ndarray, vehicle) -> tuple[float, float]:
     return force, torque
 
 
-def model_misfit(resid: np.ndarray, vehicle) -> dict | None:
+@dataclass(frozen=True)
+class Misfit:
+    """The model does not describe the flights: the held-out residual's force (share of the weight) and torque
+    (share of the weight's torque at the arm), beyond ``limit``."""
+
+    force_of_weight: float
+    torque_of_weight_at_arm: float
+    limit: float
+
+    def record(self) -> dict:
+        return {"force_of_weight": self.force_of_weight, "torque_of_weight_at_arm": self.torque_of_weight_at_arm,
+                "limit": self.limit}
+
+
+def model_misfit(resid: np.ndarray, vehicle) -> Misfit | None:
     """Where the held-out residual (N, 6) is beyond ``MISFIT`` of the vehicle's scales: the shares; else None."""
     force, torque = misfit_shares(resid, vehicle)
     if max(force, torque) <= MISFIT:
         return None
-    return {"force_of_weight": force, "torque_of_weight_at_arm": torque, "limit": MISFIT}
+    return Misfit(force, torque, MISFIT)
 
 
 class HeldOut:
     """The held-out rows of a prepared data set, and what a named set explains there."""
 
-    def __init__(self, prep: Prepared, vehicle, force_only, fixed: dict, slow: dict | None):
+    def __init__(self, prep: Prepared, vehicle, force_only, fixed, slow: slow_mod.SlowBalance | None):
         self.prep, self.vehicle, self.force_only, self.fixed, self.slow = prep, vehicle, force_only, fixed, slow
         self.idx = np.flatnonzero(prep.test)
         self.s = prep.design_s.take(self.idx)
@@ -64,7 +79,7 @@ class HeldOut:
 
     def summed(self, r: np.ndarray) -> float:
         """The torque residual summed over the slow balance's horizon (what it judges on), in noise units."""
-        sums, _ = slow_mod.window_sums(r[:, 3:6], self.group, self.slow["horizon"])
+        sums, _ = slow_mod.window_sums(r[:, 3:6], self.group, self.slow.horizon)
         return float(np.sum(sums**2 / np.nanmedian(self.prep.sd[self.idx, 3:6], axis=0) ** 2))
 
     def explained(self, named, theta, refit) -> dict:
@@ -138,20 +153,30 @@ def anatomy(stats: BlockStats, s_test: Signals, y_test: np.ndarray, sd_test: np.
     return out
 
 
-def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) -> dict:
+@dataclass(frozen=True)
+class Explained:
+    """Share of the held-out residual the extended model explains, per axis: sample by sample, and summed over
+    windows of ``horizon`` samples (:func:`summed_r2`)."""
+
+    one_step: list[float]
+    summed: list[float]
+    horizon: int
+
+    def record(self) -> dict:
+        return {"one_step": self.one_step, "summed": self.summed, "horizon": self.horizon}
+
+
+def summed_r2(prep: Prepared, y: np.ndarray, resid: np.ndarray, horizon: int) -> Explained:
     """Share of the held-out residual the extended model explains, per axis: sample by sample, and summed
     over windows of ``horizon`` samples (what a rollout integrates: a slow torque error held for the
     horizon), never across a segment's edge; windows holding a missing label are left out."""
     test = np.flatnonzero(prep.test)
-    out = {"one_step": [], "summed": []}
     num1, den1 = np.nansum(resid**2, axis=0), np.nansum(y**2, axis=0)
-    out["one_step"] = (1 - num1 / np.where(den1 > 0, den1, np.nan)).tolist()
     k = y.shape[1]
     sums, _ = slow_mod.window_sums(np.hstack([y, resid]), prep.flight[test], horizon)
     den, num = (sums[:, :k] ** 2).sum(axis=0), (sums[:, k:] ** 2).sum(axis=0)
-    out["summed"] = (1 - num / np.where(den > 0, den, np.nan)).tolist()
-    out["horizon"] = int(horizon)
-    return out
+    return Explained((1 - num1 / np.where(den1 > 0, den1, np.nan)).tolist(),
+                     (1 - num / np.where(den > 0, den, np.nan)).tolist(), int(horizon))
 
 
 def _without(f: Fit, e: str, vehicle, cfg: DiagnoseConfig, seed: int) -> Fit:
@@ -201,8 +226,8 @@ class HeldOutCheck:
     nominal_loss: float  # weighted by the noise floor: 1 = the residual is noise
     extended_loss: float
     prediction: np.ndarray  # the named effects' terms on the held-out rows
-    misfit: dict | None  # where the model does not describe the flights (:func:`model_misfit`)
-    anatomy: dict  # candidate -> share of each axis's held-out residual it explains alone
+    misfit: Misfit | None  # where the model does not describe the flights (:func:`model_misfit`)
+    anatomy: Mapping[str, list[float]]  # candidate -> share of each axis's held-out residual it explains alone
 
 
 MISFIT_REASON = "the model does not describe this flight, so no effect is a finding"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -17,7 +18,8 @@ from ..effects import CATALOG, DIMENSIONLESS, TIED, plausible_bounds, unit
 from ..errors import QrInputError
 from ..frames_compiled import qmul_s
 from ..linalg_compiled import cholesky_solve
-from ..rollout import QUANTITIES, RATE_FROZEN, MODEL, BandsConfig, Windows, roll_window, score_plant, summary, pool, at
+from ..rollout import (QUANTITIES, RATE_FROZEN, MODEL, BandsConfig, RolloutBlock, Windows, roll_window, score_plant,
+                       summary, pool, at)
 from ..plant_state import N_RB, P_DELAY, P_J, P_MARKER, P_MASS, X_POS, X_QUAT, X_RATE, X_VEL
 from ..sim.plant import cg_from_tracked, plant_accels, tracked_point, true_params
 
@@ -103,6 +105,15 @@ class Parameter:
         """The physical quantity: J_ii + dJ for the inertia, else the parameter itself."""
         return self.reference + x if self.effect == "inertia_error" else x
 
+    def to_json(self) -> dict:
+        """The parameter as ``diagnosis.json``'s ``refine.parameters`` states it."""
+        return {"effect": self.effect, "parameter": self.name, "label": self.label, "named": self.named,
+                **({"shared_with": list(self.followers)} if self.followers else {}),
+                "one_step": self.one_step, "one_step_stderr": self.one_step_se, "rollout": self.rollout,
+                "rollout_stderr": self.rollout_se, "written": self.written, "bounds": list(self.bounds),
+                "physical_range": list(self.physical), "reference": self.reference, "bound_hit": self.bound_hit,
+                "in_range": self.in_range, "z": self.z, "disagree": self.disagree, "refined": self.refined}
+
 
 @dataclass(frozen=True)
 class Direction:
@@ -147,14 +158,16 @@ class Refinement:
     loss_before: float  # L at the equation-error estimates (training windows)
     loss_after: float  # L of the written model
     loss_wanted: float  # L at the rollout's optimum (= loss_after when every value is in range)
-    training: dict  # summary blocks (qr.rollout.summary) on the training windows: extended, refined, rate_frozen
-    held_out: dict  # the same on the held-out windows
+    # model (extended, refined, rate_frozen) -> its qr.rollout.summary block on the training windows
+    training: Mapping[str, RolloutBlock]
+    held_out: Mapping[str, RolloutBlock]  # the same on the held-out windows (none: empty)
     wall_s: float
-    not_candidates: dict = field(default_factory=dict)  # coefficient → why it was not refined
+    not_candidates: Mapping[str, str] = field(default_factory=dict)  # coefficient → why it was not refined
     unconstrained: tuple = ()  # Direction: parameter combinations the data cannot fix (held at one-step values)
     ablation: tuple = ()  # Ablation rows: what each refined term removes of the rollout error at H
     diverged: int = 0  # training windows whose rollout (of the written model) diverged, scored as the protocol does
-    admission: dict = field(default_factory=dict)  # extra term → (held-out loss without, with, admitted)
+    # extra term → (held-out loss without, with, admitted); "beyond: hold or bound" → (held, within range, bound)
+    admission: Mapping[str, tuple[float | None, float | None, bool]] = field(default_factory=dict)
     balance_ref: np.ndarray | None = None  # the one-step model's force and torque balance rms per axis
     balance: np.ndarray | None = None  # the written model's balance residual per axis over the one-step model's
     # the sandwich covariance (parameter units) of the parameters off their bounds at the rollout's optimum:
@@ -212,12 +225,7 @@ class Refinement:
                           "neighbouring windows (Bartlett weights)",
             "windows": self.windows, "horizon": H, "stride": self.stride, "iterations": self.iterations,
             "stopped": self.stopped, "wall_s": self.wall_s,
-            "parameters": [{"effect": p.effect, "parameter": p.name, "label": p.label, "named": p.named,
-                            **({"shared_with": list(p.followers)} if p.followers else {}),
-                            "one_step": p.one_step, "one_step_stderr": p.one_step_se, "rollout": p.rollout,
-                            "rollout_stderr": p.rollout_se, "written": p.written, "bounds": list(p.bounds),
-                            "physical_range": list(p.physical), "reference": p.reference, "bound_hit": p.bound_hit, "in_range": p.in_range,
-                            "z": p.z, "disagree": p.disagree, "refined": p.refined} for p in self.parameters],
+            "parameters": [p.to_json() for p in self.parameters],
             "not_candidates": self.not_candidates,
             "vehicle_keys": self.properties(),
             "unconstrained": [d.to_json() for d in self.unconstrained],

@@ -11,6 +11,9 @@ start (:func:`rollout_all`, the field's yardstick: :mod:`qr.rollout`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
+
 import numba as nb
 import numpy as np
 import pandas as pd
@@ -22,7 +25,52 @@ from ..parallel import thread_map
 from ..plant_state import N_RB, P_DELAY, P_MARKER, X_QUAT, X_VEL
 from ..sim.plant import cg_from_tracked, rigid_body_rk4, tracked_pv, true_params
 from ..states import POSITION, QUATERNION, RATE, ROTORS, VELOCITY
+from .held_out import Explained
 from .labels import flight_of
+
+
+@dataclass(frozen=True)
+class Drift:
+    """A replay's error at the horizon (the last sample of each full window): position RMSE per axis and
+    overall (m), attitude RMSE (deg), over ``windows`` windows (none: no number)."""
+
+    windows: int
+    position_rmse_axes: tuple[float, ...] = ()
+    position_rmse: float = float("nan")
+    attitude_rmse_deg: float = float("nan")
+
+
+@dataclass(frozen=True)
+class ModelReplay:
+    """One model's replay: the per-sample errors (:func:`replay`), their :class:`Drift` and their growth."""
+
+    errors: pd.DataFrame
+    summary: Drift
+    growth: pd.DataFrame
+
+
+@dataclass(frozen=True)
+class Replays:
+    """The open-loop replay of the nominal and of the extended model."""
+
+    nominal: ModelReplay
+    extended: ModelReplay
+
+
+@dataclass(frozen=True)
+class HeldOutRollout:
+    """The multi-step rollout from the held-out starts (``diagnosis.json``'s ``rollout``): per model the spec's
+    block (:func:`qr.rollout.summary`, keyed by quantity), and the share of the residual the named effects
+    explain."""
+
+    horizon: int
+    models: Mapping[str, rollout.RolloutBlock]  # model -> its block (qr.rollout.summary)
+    explained: Explained
+    part: str = "held-out"
+
+    def record(self) -> dict:
+        return {"horizon": self.horizon, "part": self.part, "models": dict(self.models),
+                "explained": self.explained.record()}
 
 
 @nb.njit(cache=True)
@@ -117,7 +165,7 @@ def _window_starts(t: np.ndarray, horizon_s: float) -> np.ndarray:
     return np.array(starts, dtype=np.int64)
 
 
-def summarise(err: pd.DataFrame, horizon_s: float, mask=None) -> dict:
+def summarise(err: pd.DataFrame, horizon_s: float, mask=None) -> Drift:
     """RMSE at the horizon (last sample of each full window), per axis and overall, and attitude."""
     e = err if mask is None else err[mask]
     last = e.groupby("window").tail(1)
@@ -126,13 +174,10 @@ def summarise(err: pd.DataFrame, horizon_s: float, mask=None) -> dict:
     ok = np.isfinite(xyz).all(axis=1)
     xyz = xyz[ok]
     if len(xyz) == 0:
-        return {"windows": 0}
-    return {
-        "windows": int(len(xyz)),
-        "position_rmse_axes": np.sqrt((xyz**2).mean(axis=0)).tolist(),
-        "position_rmse": float(np.sqrt((xyz**2).sum(axis=1).mean())),
-        "attitude_rmse_deg": float(np.degrees(np.sqrt(np.nanmean(last["attitude_error"].to_numpy()[ok] ** 2)))),
-    }
+        return Drift(0)
+    return Drift(int(len(xyz)), tuple(np.sqrt((xyz**2).mean(axis=0)).tolist()),
+                 float(np.sqrt((xyz**2).sum(axis=1).mean())),
+                 float(np.degrees(np.sqrt(np.nanmean(last["attitude_error"].to_numpy()[ok] ** 2)))))
 
 
 def growth(err: pd.DataFrame, horizon_s: float, bins: int = 20) -> pd.DataFrame:
@@ -145,7 +190,7 @@ def growth(err: pd.DataFrame, horizon_s: float, bins: int = 20) -> pd.DataFrame:
 
 
 def replay_all(states_list, measured_list, vehicle, extension: list[dict], horizon_s: float,
-               windows: list[dict]) -> dict:
+               windows: list[dict]) -> Replays:
     """Replay each state table (a flight or a gap-free segment of one) on its own measured rows, with the
     vehicle's own effects (``nominal``) and with ``extension`` added (``extended``): per model the errors,
     their summary at the horizon and their growth, over the windows that start in each flight's held-out
@@ -163,18 +208,17 @@ def replay_all(states_list, measured_list, vehicle, extension: list[dict], horiz
         err = pd.concat(out[key], ignore_index=True)
         err["window"] = err["flight"] * 100000 + err["window"]
         # a window belongs to the test part when it starts there
-        start_test = err.groupby("window")["test"].transform("first")
-        res[key] = {"errors": err, "summary": summarise(err, horizon_s, start_test.to_numpy()),
-                    "growth": growth(err[start_test.to_numpy()], horizon_s)}
-    return res
+        start_test = err.groupby("window")["test"].transform("first").to_numpy()
+        res[key] = ModelReplay(err, summarise(err, horizon_s, start_test), growth(err[start_test], horizon_s))
+    return Replays(**res)
 
 
 def rollout_all(states_list, measured_list, vehicle, extension: list[dict], windows: list[dict], horizon: int,
-                max_input_gap: int, trim_s: float, hybrid=None) -> dict:
+                max_input_gap: int, trim_s: float, explained: Explained, hybrid=None) -> HeldOutRollout:
     """Multi-step rollout (qr.rollout) of the nominal and the extended model (``extension`` added) and the
     references, from the held-out starts of every state table (a flight or a gap-free segment of one):
-    the spec's block.  ``hybrid``: a vehicle rolled out beside them (the extended one with its learned
-    torque remainder)."""
+    the spec's block, with ``explained`` (:func:`qr.diagnose.held_out.summed_r2`).  ``hybrid``: a vehicle
+    rolled out beside them (the extended one with its learned torque remainder)."""
     models = {"hold": "hold", "rate_frozen": ("rate_frozen", vehicle), "nominal": (vehicle, list(vehicle.effects)),
               "extended": (vehicle, list(vehicle.effects) + extension)}
     if hybrid is not None:
@@ -187,5 +231,4 @@ def rollout_all(states_list, measured_list, vehicle, extension: list[dict], wind
         if keep.any():
             parts.append(rollout.score(st, meas, horizon, max_input_gap, models, keep))
     pooled = rollout.pool(parts)
-    return {"horizon": horizon, "part": "held-out",
-            "models": {k: rollout.summary(*v) for k, v in pooled.items()}}
+    return HeldOutRollout(horizon, {k: rollout.summary(*v) for k, v in pooled.items()}, explained)

@@ -20,6 +20,7 @@ from ..rotors import SPEED_UNIT_NAMES
 from .accelerometer import statement as accelerometer_statement
 from .core import AXES
 from .diagnosis import Diagnosis
+from .replay import Replays
 from .document import stated
 
 
@@ -204,21 +205,19 @@ def _replay(doc: dict) -> list[str]:
 
 def _rollout(d: Diagnosis) -> list[str]:
     ro = d.rollout
-    if not ro.get("models"):
+    if not ro.models:
         return []
-    L = [f"## Multi-step rollout (held-out part, every start, H = {ro['horizon']} steps; `qr evaluate`)\n",
+    L = [f"## Multi-step rollout (held-out part, every start, H = {ro.horizon} steps; `qr evaluate`)\n",
          "Mean absolute error at step h: p (m), v (m/s), R (rad), w (rad/s); `hold` holds the state, "
          "`rate_frozen` is the benchmark's physics baseline (nominal thrust, no drag, body rate held).\n",
-         *table(ro["models"], ro["horizon"]), ""]
-    ex = ro.get("explained")
-    if ex:
-        fmt = lambda x: "–" if x is None or x != x else f"{100 * x:.0f} %"  # noqa: E731
-        L += [f"Share of the held-out residual the named effects explain, sample by sample and summed "
-              f"over {ex['horizon']} samples (the slow error a rollout integrates):\n",
-              "| | " + " | ".join(AXES) + " |", "|---|" + "---:|" * len(AXES),
-              "| one step | " + " | ".join(fmt(x) for x in ex["one_step"]) + " |",
-              f"| summed over {ex['horizon']} | " + " | ".join(fmt(x) for x in ex["summed"]) + " |", ""]
-    return L
+         *table(ro.models, ro.horizon), ""]
+    ex = ro.explained
+    fmt = lambda x: "–" if x is None or x != x else f"{100 * x:.0f} %"  # noqa: E731
+    return L + [f"Share of the held-out residual the named effects explain, sample by sample and summed "
+                f"over {ex.horizon} samples (the slow error a rollout integrates):\n",
+                "| | " + " | ".join(AXES) + " |", "|---|" + "---:|" * len(AXES),
+                "| one step | " + " | ".join(fmt(x) for x in ex.one_step) + " |",
+                f"| summed over {ex.horizon} | " + " | ".join(fmt(x) for x in ex.summed) + " |", ""]
 
 
 def _torque_remainder(doc: dict) -> list[str]:
@@ -330,23 +329,23 @@ def residual_figure(d: Diagnosis, path: Path) -> None:
     figures.save(fig, path)
 
 
-def replay_figure(replay: dict, path: Path) -> None:
+def replay_figure(replay: Replays, path: Path) -> None:
     """The replay's error growth per axis, and the three worst windows."""
     fig, axs = figures.subplots(1, 2, figsize=(9, 3.2))
     for key, c in (("nominal", "grey"), ("extended", "C3")):
-        g = replay[key]["growth"]
+        g = getattr(replay, key).growth
         for j, a in enumerate("xyz"):
             axs[0].plot(g["elapsed"], g[f"e{a}"], color=c, ls=["-", "--", ":"][j], label=f"{key} {a}")
     axs[0].set_xlabel("time since restart (s)")
     axs[0].set_ylabel("RMS position error (m)")
     axs[0].legend(fontsize=6, ncol=2)
-    err = replay["nominal"]["errors"]
+    err = replay.nominal.errors
     err = err[np.isfinite(err["ex"])]
     last = err.groupby("window").tail(1)
     worst = last.assign(e=np.sqrt(last.ex**2 + last.ey**2 + last.ez**2)).nlargest(3, "e")["window"]
     for k, wdw in enumerate(worst):
         for key, c in (("nominal", "grey"), ("extended", "C3")):
-            e = replay[key]["errors"]
+            e = getattr(replay, key).errors
             e = e[e["window"] == wdw]
             axs[1].plot(e["elapsed"], np.sqrt(e.ex**2 + e.ey**2 + e.ez**2), color=c, lw=1,
                         label=key if k == 0 else None)

@@ -7,6 +7,8 @@ selection did not name ``inertia_error``.  The rule and why not yaw: docs/diagno
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..effects import CATALOG, plausible_bounds
@@ -59,8 +61,43 @@ def cv_gain(S: np.ndarray, folds: int) -> float:
     return float(1 - sse / total) if total > 0 else 0.0
 
 
+@dataclass(frozen=True)
+class SlowAxis:
+    """One inertia entry judged on its axis: the slope, its s.e., cross-validated gain and t, and whether it is
+    named (why not); an axis not tested has no numbers."""
+
+    axis: str
+    parameter: str
+    named: bool
+    why_not: str | None
+    estimate: float | None = None
+    stderr: float | None = None
+    cv_gain: float | None = None
+    t: float | None = None
+
+    def record(self) -> dict:
+        if self.estimate is None:
+            return {"axis": self.axis, "parameter": self.parameter, "named": self.named, "why_not": self.why_not}
+        return {"axis": self.axis, "parameter": self.parameter, "estimate": self.estimate, "stderr": self.stderr,
+                "cv_gain": self.cv_gain, "t": self.t, "named": self.named, "why_not": self.why_not}
+
+
+@dataclass(frozen=True)
+class SlowBalance:
+    """The slow torque balance: the windows' horizon (samples) and count, each axis, and whether any is named."""
+
+    horizon: int
+    windows: int
+    axes: list[SlowAxis]
+    named: bool
+
+    def record(self) -> dict:
+        return {"horizon": self.horizon, "windows": self.windows, "axes": [a.record() for a in self.axes],
+                "named": self.named}
+
+
 def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int, bounds, folds: int,
-                 t_name: float, min_gain: float, n_boot: int, seed: int, skip: dict | None = None) -> list[dict]:
+                 t_name: float, min_gain: float, n_boot: int, seed: int, skip: dict | None = None) -> list[SlowAxis]:
     """Per axis: the slope of the summed residual ``y`` (n, 3) on the summed regressor ``x`` (n, 3), its
     cross-validated gain, block-bootstrap s.e. and whether it passes the rule; an axis in ``skip``
     (axis: why) is reported, not tested."""
@@ -68,8 +105,7 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
     out = []
     for a in range(3):
         if skip and a in skip:
-            out.append({"axis": AXIS_NAMES[a], "parameter": CATALOG[EFFECT].params[a], "named": False,
-                        "why_not": skip[a]})
+            out.append(SlowAxis(AXIS_NAMES[a], CATALOG[EFFECT].params[a], False, skip[a]))
             continue
         S = per_block(x[:, a], y[:, a], block, n_blocks)
         tot = S.sum(axis=0)
@@ -86,13 +122,12 @@ def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int,
         why = None if ok else ("is outside its plausible range" if not inside else
                                f"explains {100 * gain:.1f} % of the summed residual (< {100 * min_gain:g} %)"
                                if gain < min_gain else f"is only {t:.1f} s.e. from zero (< {t_name:g})")
-        out.append({"axis": AXIS_NAMES[a], "parameter": CATALOG[EFFECT].params[a], "estimate": est, "stderr": se,
-                    "cv_gain": gain, "t": t, "named": ok, "why_not": why})
+        out.append(SlowAxis(AXIS_NAMES[a], CATALOG[EFFECT].params[a], ok, why, est, se, gain, t))
     return out
 
 
 def slow_torque(prep, vehicle, residual: np.ndarray, horizon: int, folds: int, t_name: float,
-                min_gain: float, n_boot: int, seed: int) -> dict:
+                min_gain: float, n_boot: int, seed: int) -> SlowBalance:
     """The rule on the training rows of ``prep`` (cross-fitted: the regressor from the other half-sample
     filter), given ``residual`` (N, 6) left by the named effects on every row."""
     tr = np.flatnonzero(prep.train)
@@ -108,5 +143,4 @@ def slow_torque(prep, vehicle, residual: np.ndarray, horizon: int, folds: int, t
     axes = slow_inertia(sums[:, :3], sums[:, 3:], block, n_blocks, (lo, hi), folds, t_name, min_gain, n_boot, seed,
                         NOT_TESTED) \
         if len(block) else []
-    return {"horizon": int(horizon), "windows": int(len(block)), "axes": axes,
-            "named": any(a["named"] for a in axes)}
+    return SlowBalance(int(horizon), int(len(block)), axes, any(a.named for a in axes))

@@ -98,10 +98,37 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     t, P, Qm, U = _inputs(flight, source or flight.attrs.get("source"))
     keep = _keep(t, s["nis"]["burn_in_s"])
     speed_scale = float(vehicle.hover_speed) if vehicle is not None else float(np.nanmedian(np.abs(U)))
-    meas = {"position": P, "attitude": Qm, "motor": U}
-    tuned = _tune(s, t, meas, keep, speed_scale, progress)
+    tuned = _tune(s, t, {"position": P, "attitude": Qm, "motor": U}, keep, speed_scale, progress)
     for f, v in tuned.items():
         s[f]["q"], s[f]["r"] = v["q"], v["r"]
+    ((quat, psi, Va, blocks, inn_a, resets), gyro_report), (Xp, Vp, inn_p), (Xm, Vm, inn_m) = \
+        _run_filters(flight, s, t, P, Qm, U, speed_scale, progress)
+    w, al, sd_w, sd_al = attitude_eskf.body_rates(quat, psi, blocks)
+    table = _state_table(t, Xp, quat, w, al, Xm)
+    Vp, Va, Vm = (np.maximum(V, 0.0) for V in (Vp, Va, Vm))  # rounding can leave -0-ish variances
+    table = pd.concat([table, _uncertainty_table(Vp, Va, sd_w, sd_al, Vm, inn_p, inn_a, inn_m)], axis=1)
+    conf = float(s["nis"]["confidence"])
+    nis_report = {"position": nis.report(inn_p, None, keep, conf), "attitude": nis.report(inn_a, None, keep, conf),
+                  "motor": nis.report(inn_m, U_COLS, keep, conf)}
+    flagged = [f for f in ("position", "attitude") if nis_report[f]["consistent"] is False]
+    flagged += [f"motor.{u}" for u in U_COLS if nis_report["motor"][u]["consistent"] is False]
+    report = {
+        "filter": s["name"], "implementation": s["implementation"], "smoother": bool(s["smoother"]),
+        "discretisation": s["discretisation"], "samples": int(len(t)), "duration_s": float(t[-1] - t[0]),
+        "dropouts": {"position": int((~np.all(np.isfinite(P), axis=1)).sum()),
+                     "attitude": int((~np.all(np.isfinite(Qm), axis=1)).sum()),
+                     "motor": int((~np.isfinite(U)).sum())},
+        "noise": _noise(s), "tuning": tuned or None,
+        "gyro": gyro_report or {"fused": False},
+        "attitude_restarts": {"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
+        "nis": nis_report, "nis_burn_in_s": float(t[keep][0] - t[0]), "inconsistent": flagged,
+        "nis_note": TUNED_NIS_NOTE if tuned else None,
+    }
+    return table, report
+
+
+def _run_filters(flight: pd.DataFrame, s: dict, t, P, Qm, U, speed_scale: float, progress: bool):
+    """The three filters' outputs: ((attitude, the gyro's report), position, motor)."""
     disc, smooth, ref = s["discretisation"], bool(s["smoother"]), s["implementation"] == "reference"
     kw = dict(progress=progress) if ref else {}
 
@@ -133,10 +160,11 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
              lambda: mf(t, U, s["motor"]["q"], s["motor"]["r"], disc, smooth, speed_scale=speed_scale, **kw)]
     # the three filters are independent: side by side on the compiled path (the reference path prints
     # progress bars, one at a time)
-    ((quat, psi, Va, blocks, inn_a, resets), gyro_report), (Xp, Vp, inn_p), (Xm, Vm, inn_m) = \
-        [f() for f in tasks] if ref else thread_map(lambda f: f(), tasks)
+    return [f() for f in tasks] if ref else thread_map(lambda f: f(), tasks)
 
-    w, al, sd_w, sd_al = attitude_eskf.body_rates(quat, psi, blocks)
+
+def _state_table(t, Xp, quat, w, al, Xm) -> pd.DataFrame:
+    """The state estimate (``qr.states.COLUMNS``)."""
     cols = {"t": t}
     for i, name in enumerate(["p", "v", "a"]):
         for a, ax in enumerate("xyz"):
@@ -146,8 +174,11 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     cols.update({f"al{ax}": al[:, a] for a, ax in enumerate("xyz")})
     cols.update({f"u{i + 1}": Xm[:, i, 0] for i in range(4)})
     cols.update({f"ud{i + 1}": Xm[:, i, 1] for i in range(4)})
-    table = pd.DataFrame(cols)[COLUMNS]
-    Vp, Va, Vm = (np.maximum(V, 0.0) for V in (Vp, Va, Vm))  # rounding can leave -0-ish variances
+    return pd.DataFrame(cols)[COLUMNS]
+
+
+def _uncertainty_table(Vp, Va, sd_w, sd_al, Vm, inn_p, inn_a, inn_m) -> pd.DataFrame:
+    """The posterior standard deviations (``sd_*``) and the per-sample NIS (``nis_*``)."""
     sd = {}
     for i, name in enumerate(["p", "v", "a"]):
         for a, ax in enumerate("xyz"):
@@ -159,28 +190,14 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     sd.update({f"sd_ud{i + 1}": np.sqrt(Vm[:, i, 1]) for i in range(4)})
     sd["nis_p"], sd["nis_q"] = inn_p.nis[:, 0], inn_a.nis[:, 0]
     sd.update({f"nis_{u}": inn_m.nis[:, i] for i, u in enumerate(U_COLS)})
-    table = pd.concat([table, pd.DataFrame(sd)], axis=1)
+    return pd.DataFrame(sd)
 
-    conf = float(s["nis"]["confidence"])
-    nis_report = {"position": nis.report(inn_p, None, keep, conf), "attitude": nis.report(inn_a, None, keep, conf),
-                  "motor": nis.report(inn_m, U_COLS, keep, conf)}
-    flagged = [f for f in ("position", "attitude") if nis_report[f]["consistent"] is False]
-    flagged += [f"motor.{u}" for u in U_COLS if nis_report["motor"][u]["consistent"] is False]
+
+def _noise(s: dict) -> dict:
+    """Each filter's noise as used (``q``, ``r``; with exact discretisation its corner frequency)."""
     noise = {}
     for f in FILTERS:
         noise[f] = {"q": s[f]["q"], "r": s[f]["r"]}
-        if disc == "exact":
+        if s["discretisation"] == "exact":
             noise[f]["corner_hz"] = corner_hz(float(np.mean(s[f]["q"])), s[f]["r"], ORDER[f])
-    report = {
-        "filter": s["name"], "implementation": s["implementation"], "smoother": smooth, "discretisation": disc,
-        "samples": int(len(t)), "duration_s": float(t[-1] - t[0]),
-        "dropouts": {"position": int((~np.all(np.isfinite(P), axis=1)).sum()),
-                     "attitude": int((~np.all(np.isfinite(Qm), axis=1)).sum()),
-                     "motor": int((~np.isfinite(U)).sum())},
-        "noise": noise, "tuning": tuned or None,
-        "gyro": gyro_report or {"fused": False},
-        "attitude_restarts": {"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
-        "nis": nis_report, "nis_burn_in_s": float(t[keep][0] - t[0]), "inconsistent": flagged,
-        "nis_note": TUNED_NIS_NOTE if tuned else None,
-    }
-    return table, report
+    return noise

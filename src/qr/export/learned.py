@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..residual import weights_bytes
 from . import mapping as mp
 from .mapping import File
 
@@ -45,8 +46,6 @@ def residual_spec(vehicle, pp: mp.Plant, stem: str) -> dict | None:
 
 def weights(vehicle, stem: str) -> list[File]:
     """The network's ``.npz`` beside the exported module (nothing without one)."""
-    from ..residual import weights_bytes
-
     if vehicle.residual is None:
         return []
     return [File(residual_file(stem), weights_bytes(vehicle.residual))]

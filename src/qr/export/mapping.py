@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from .. import plant_state as ps
+from .. import residual as rs
 from ..sim import plant as pl
-from ..vehicle import SPEED_IN_RPM
+from ..vehicle import KNOWN, SPEED_IN_RPM
 
 EXACT, APPROXIMATE, IMPOSSIBLE = "exact", "approximate", "impossible"
 V_REF = 1.0  # m/s: the airspeed at which a velocity-dependent term's size is stated
@@ -209,8 +210,6 @@ def torque_size(n: float, pp: Plant) -> str:
 def residual_size(vehicle, pp: Plant) -> str:
     """The learned wrench's size: its RMS over the training flights (as ``qr learn residual`` recorded it in the
     vehicle file), and its value at hover (level, at rest, every rotor at the hover speed)."""
-    from .. import residual as rs
-
     net = vehicle.residual
     phi = rs.features(net.inputs, np.zeros((1, 3)), np.zeros((1, 3)), np.array([[0.0, 0.0, -1.0]]),
                       np.full((1, vehicle.rotors.n), vehicle.hover_speed), net.rotor_speed_scale)
@@ -221,11 +220,11 @@ def residual_size(vehicle, pp: Plant) -> str:
     if rec is None:
         return ("its RMS over the training flights is not recorded in this file (a qr learn residual before the "
                 "record: train again to have it); " + hover)
-    flights = ", ".join(rec["flights"]) or "-"
-    return (f"RMS over the {rec['samples']} samples of its training windows ({len(rec['flights'])} flight(s): "
-            f"{flights}): force {force_size(rec['rms_force'], pp.weight)} (x, y, z: "
-            + ", ".join(f"{x:.3g}" for x in rec["rms_force_xyz"]) + f" N), torque {torque_size(rec['rms_torque'], pp)}"
-            " (x, y, z: " + ", ".join(f"{x:.3g}" for x in rec["rms_torque_xyz"]) + " N m); " + hover)
+    flights = ", ".join(rec.flights) or "-"
+    return (f"RMS over the {rec.samples} samples of its training windows ({len(rec.flights)} flight(s): "
+            f"{flights}): force {force_size(rec.rms_force, pp.weight)} (x, y, z: "
+            + ", ".join(f"{x:.3g}" for x in rec.rms_force_xyz) + f" N), torque {torque_size(rec.rms_torque, pp)}"
+            " (x, y, z: " + ", ".join(f"{x:.3g}" for x in rec.rms_torque_xyz) + " N m); " + hover)
 
 
 def residual_item(vehicle) -> str:
@@ -348,8 +347,6 @@ def common_rows(vehicle, pp: Plant, keys: dict[str, tuple]) -> list[Row]:
     for key in ("description", "source"):
         if key in raw:
             out.append(Row(key, "(text)", "-", "-", EXACT, "text, not physics: nothing to map"))
-    from ..vehicle import KNOWN
-
     for key in sorted(set(map(str, raw)) - KNOWN):
         out.append(Row(key, "(unknown key)", "-", "-", IMPOSSIBLE, "not a key qr knows: qr ignores it (warned at "
                        "load), so the export carries nothing of it; check its spelling"))

@@ -182,6 +182,7 @@ def wrench_text(vehicle, pp: mp.Plant, path: str, version: str) -> str:
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
+    """The mapping of every key, parameter and named effect of the vehicle file onto the MJCF (and the module)."""
     rx, ry = mp.fx_cg(vehicle)
     out = mp.common_rows(vehicle, pp, {
         "name": ("mujoco@model, body@name", vehicle.name, ""),
@@ -211,7 +212,6 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         mp.hub_row(vehicle, "site rotor_i@pos (z)"),
     ]
     size = mp.sizes(pp)
-    P = pp.P
     for name in mp.present(vehicle):
         val = mp.effect_value(vehicle, name)
         if name in ("mass_error", "inertia_error"):
@@ -234,8 +234,13 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         elif name in size:
             out.append(Row(name, val, "-", "-", IMPOSSIBLE,
                            f"no MJCF element ({size[name]}): left out; apply it through MjData.xfrc_applied"))
-    module = wrench_module(vehicle)
-    if P[ps.P_REM_ON]:
+    return out + _learned_rows(vehicle, pp, size)
+
+
+def _learned_rows(vehicle, pp: mp.Plant, size: dict) -> list[Row]:
+    """The learned terms: applied by the module beside the MJCF."""
+    out, module = [], wrench_module(vehicle)
+    if pp.P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", f"{module}.py: LearnedWrench (xfrc_applied)",
                        "the file's W", EXACT,
                        f"a learned map, no MJCF element: the module's control callback adds W φ to the body's torque "

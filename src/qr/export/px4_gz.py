@@ -133,17 +133,28 @@ def model_config(vehicle, model: str, version: str) -> str:
 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
-    m_b, c_b, _ = base_link(pp)
+    """The mapping of every key, parameter and named effect of the vehicle file onto the Gazebo model and PX4."""
+    plug, size = plugin_values(pp), mp.sizes(pp)
+    effect_rows = (_effect_row(name, vehicle, pp, plug, size) for name in mp.present(vehicle))
+    return [*_key_rows(vehicle, pp, plug), *(r for r in effect_rows if r is not None),
+            *_learned_rows(vehicle, pp, size)]
+
+
+def _moment_formula(vehicle) -> str:
+    """momentConstant = k_yaw / k_i: C_Q / C_T, the gains and the imbalance of rotor i (f² cancels)."""
+    k_i = mp.fx_k_thrust(vehicle).removesuffix(" / f²")
+    return f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / ({k_i})" if k_i != "C_T" else \
+        f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / C_T"
+
+
+def _key_rows(vehicle, pp: mp.Plant, plug: list[dict]) -> list[Row]:
+    """The vehicle file's keys (mass, inertia, coefficients, layout, motors, ground) on the model and PX4."""
+    m_b, _, _ = base_link(pp)
     m_r, _ = rotor_link_inertia(pp)
-    plug = plugin_values(pp)
-    n = len(pp.yaw_signs)
     frac = g(ROTOR_MASS_FRACTION)
     mass = mp.fx_mass(vehicle) if not mp.has(vehicle, "mass_error") else f"({mp.fx_mass(vehicle)})"
     rx, ry = mp.fx_cg(vehicle)
-    # momentConstant = k_yaw / k_i: C_Q / C_T, the gains and the imbalance of rotor i (f² cancels)
-    k_i = mp.fx_k_thrust(vehicle).removesuffix(" / f²")
-    moment = f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / ({k_i})" if k_i != "C_T" else \
-        f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / C_T"
+    moment = _moment_formula(vehicle)
     out = mp.common_rows(vehicle, pp, {
         "name": ("model name (model.config, model.sdf), folder", file_stem(vehicle), ""),
         "mass": ("base_link, rotor_<i> inertial/mass", f"{g(m_b)} (base_link), {g(m_r)} (each rotor link) kg",
@@ -159,7 +170,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         "torque_coeff": ("momentConstant", ", ".join(p["momentConstant"] for p in plug) + " m", moment,
                          "gz's drag torque is momentConstant × thrust: C_Q / C_T, a length (the f² cancels)"),
     })
-    out += [
+    return out + [
         Row("layout (yaw_sign)", ", ".join(f"{s:+g}" for s in vehicle.rotors.yaw_signs), "turningDirection",
             ", ".join(p["turningDirection"] for p in plug), EXACT,
             "gz drag torque = -turningDirection (ccw +1) momentConstant thrust: yaw_sign -1 ↔ ccw"),
@@ -186,59 +197,67 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
         mp.ground_row(vehicle),
         mp.hub_row(vehicle, "rotor_<i> pose (z)", kept=("rotor_drag_moment",) if pp.P[ps.P_RDRAG] else ()),
     ]
-    size = mp.sizes(pp)
-    P = pp.P
+
+
+def _effect_row(name: str, vehicle, pp: mp.Plant, plug: list[dict], size: dict) -> Row | None:
+    """The row of a named effect: on the motor model, the links, or left out (impossible) with its size."""
+    P, val, n, frac = pp.P, mp.effect_value(vehicle, name), len(pp.yaw_signs), g(ROTOR_MASS_FRACTION)
+    _, c_b, _ = base_link(pp)
     xs = " + ".join(f"x_{i}" for i in range(1, n + 1))
     ys = " + ".join(f"y_{i}" for i in range(1, n + 1))
-    for name in mp.present(vehicle):
-        val = mp.effect_value(vehicle, name)
-        if name in ("mass_error", "inertia_error"):
-            out.append(Row(name, val, "inertial", "(added)", EXACT, "added to the vehicle's value (mass, inertia rows)"))
-        elif name in ("thrust_gain", "motor_imbalance"):
-            out.append(Row(name, val, "motorConstant (per rotor); momentConstant, CA_ROTOR<i>_KM",
-                           ", ".join(p["motorConstant"] for p in plug), EXACT,
-                           "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q / (gain (1 + d_i) C_T) "
-                           "keeps the yaw torque qr's", formula=mp.fx_k_thrust(vehicle)))
-        elif name == "yaw_torque_gain":
-            out.append(Row(name, val, "momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug),
-                           EXACT, "gain C_Q / C_T", formula=moment))
-        elif name == "cg_offset":
-            out.append(Row(name, val, "base_link inertial/pose; CA_ROTOR<i>_PX/PY", f"{g(c_b[0])}, {g(c_b[1])}, 0",
-                           EXACT, "base_link's CoM such that the composite CG is at (rx, ry): the thrusts' moment "
-                           "Γ - c × T = [-ry T, rx T, 0]; PX4's rotor positions relative to it",
-                           formula=f"(cg_offset.rx − {frac} · ({xs})) / (1 − n · {frac}), "
-                                   f"(cg_offset.ry − {frac} · ({ys})) / (1 − n · {frac}), 0"))
-        elif name == "rotor_drag":
-            out.append(Row(name, val, "rotorDragCoefficient", plug[0]["rotorDragCoefficient"] + " N s/m per rad/s",
-                           APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
-                           "velocity (v + ω × r_i): its force is qr's at equal rotor speeds and zero body rate"
-                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)"
-                              if P[ps.P_RDM] == P[ps.P_RDRAG] else
-                              "; its moment about the CG (a yaw-rate damping) is gz's addition (rotor_drag_moment, not named)"),
-                           formula="rotor_drag.k / f"))
-        elif name == "rotor_drag_moment":
-            same = P[ps.P_RDM] == P[ps.P_RDRAG]
-            flat = pp.hub_z == 0
-            out.append(Row(name, val, "rotorDragCoefficient; rotor_<i> pose", plug[0]["rotorDragCoefficient"]
-                           + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
-                           ("gz's rotor drag acts at each rotor link with the link's velocity: its moment about the CG is "
-                            "qr's term with rotor_drag's k" + ("" if flat else
-                                                               f"; the links sit in the CG's plane, not hub_z = {g(pp.hub_z)} m "
-                                                               "above it: the roll/pitch part is left out")) if same else
-                           f"gz's rotor drag is a force at the links, its moment comes with it: rotorDragCoefficient "
-                           f"carries rotor_drag's k, {mp.untied_moment(P)} "
-                           f"({size[name]})", formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
-        elif name == "blade_flapping":
-            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"torque about v × e_z ({size[name]}); gz's "
-                           "rollingMomentCoefficient acts about v⊥ itself, a different axis: left at 0, flapping "
-                           "left out"))
-        elif name == "marker_offset":
-            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"not a force ({size[name]}): the model's pose is "
-                           "base_link; the tracked point is its pose plus R r"))
-        elif name in size:
-            out.append(Row(name, val, "-", "-", IMPOSSIBLE, f"no element of the motor model or the link "
-                           f"({size[name]}): left out"))
-    if P[ps.P_REM_ON]:
+    if name in ("mass_error", "inertia_error"):
+        return Row(name, val, "inertial", "(added)", EXACT, "added to the vehicle's value (mass, inertia rows)")
+    elif name in ("thrust_gain", "motor_imbalance"):
+        return Row(name, val, "motorConstant (per rotor); momentConstant, CA_ROTOR<i>_KM",
+                   ", ".join(p["motorConstant"] for p in plug), EXACT,
+                   "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q / (gain (1 + d_i) C_T) "
+                   "keeps the yaw torque qr's", formula=mp.fx_k_thrust(vehicle))
+    elif name == "yaw_torque_gain":
+        return Row(name, val, "momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug),
+                   EXACT, "gain C_Q / C_T", formula=_moment_formula(vehicle))
+    elif name == "cg_offset":
+        return Row(name, val, "base_link inertial/pose; CA_ROTOR<i>_PX/PY", f"{g(c_b[0])}, {g(c_b[1])}, 0",
+                   EXACT, "base_link's CoM such that the composite CG is at (rx, ry): the thrusts' moment "
+                   "Γ - c × T = [-ry T, rx T, 0]; PX4's rotor positions relative to it",
+                   formula=f"(cg_offset.rx − {frac} · ({xs})) / (1 − n · {frac}), "
+                           f"(cg_offset.ry − {frac} · ({ys})) / (1 − n · {frac}), 0")
+    elif name == "rotor_drag":
+        return Row(name, val, "rotorDragCoefficient", plug[0]["rotorDragCoefficient"] + " N s/m per rad/s",
+                   APPROXIMATE, "k / f; gz applies -|ω_i| k v⊥ at each rotor link with the link's own "
+                   "velocity (v + ω × r_i): its force is qr's at equal rotor speeds and zero body rate"
+                   + ("; its moment about the CG is rotor_drag_moment's (named, the same k)"
+                      if P[ps.P_RDM] == P[ps.P_RDRAG] else
+                      "; its moment about the CG (a yaw-rate damping) is gz's addition (rotor_drag_moment, not named)"),
+                   formula="rotor_drag.k / f")
+    elif name == "rotor_drag_moment":
+        same = P[ps.P_RDM] == P[ps.P_RDRAG]
+        flat = pp.hub_z == 0
+        return Row(name, val, "rotorDragCoefficient; rotor_<i> pose", plug[0]["rotorDragCoefficient"]
+                   + " N s/m per rad/s", EXACT if same and flat else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
+                   ("gz's rotor drag acts at each rotor link with the link's velocity: its moment about the CG is "
+                    "qr's term with rotor_drag's k" + ("" if flat else
+                                                       f"; the links sit in the CG's plane, not hub_z = {g(pp.hub_z)} m "
+                                                       "above it: the roll/pitch part is left out")) if same else
+                   f"gz's rotor drag is a force at the links, its moment comes with it: rotorDragCoefficient "
+                   f"carries rotor_drag's k, {mp.untied_moment(P)} "
+                   f"({size[name]})", formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0")
+    elif name == "blade_flapping":
+        return Row(name, val, "-", "-", IMPOSSIBLE, f"torque about v × e_z ({size[name]}); gz's "
+                   "rollingMomentCoefficient acts about v⊥ itself, a different axis: left at 0, flapping "
+                   "left out")
+    elif name == "marker_offset":
+        return Row(name, val, "-", "-", IMPOSSIBLE, f"not a force ({size[name]}): the model's pose is "
+                   "base_link; the tracked point is its pose plus R r")
+    elif name in size:
+        return Row(name, val, "-", "-", IMPOSSIBLE, f"no element of the motor model or the link "
+                   f"({size[name]}): left out")
+    return None
+
+
+def _learned_rows(vehicle, pp: mp.Plant, size: dict) -> list[Row]:
+    """The learned terms, which neither the Gazebo model nor PX4 can hold."""
+    out = []
+    if pp.P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", "-", "-", IMPOSSIBLE,
                        f"a learned map ({size['torque_remainder']}): no element of the Gazebo model holds it: left "
                        "out, the model flies without it"))

@@ -204,11 +204,16 @@ def module_text(vehicle, pp: mp.Plant, path: str, version: str, module: str) -> 
 
 def rows(vehicle, pp: mp.Plant) -> list[Row]:
     """The mapping of every key, parameter and named effect of the vehicle file onto RotorPy."""
-    qp = quad_params(pp)
-    size = mp.sizes(pp)
+    qp, size = quad_params(pp), mp.sizes(pp)
+    effect_rows = (_rotor_effect_row(name, vehicle, pp, qp, size) or _body_effect_row(name, vehicle, pp, qp, size)
+                   for name in mp.present(vehicle))
+    return [*_key_rows(vehicle, pp, qp), *(r for r in effect_rows if r is not None), *_learned_rows(vehicle, pp, size)]
+
+
+def _key_rows(vehicle, pp: mp.Plant, qp: dict) -> list[Row]:
+    """The vehicle file's keys (mass, inertia, coefficients, layout, motors, ground) and RotorPy's own settings."""
     u = vehicle.rotor_speed_unit
     rx, ry = mp.fx_cg(vehicle)
-    P = pp.P
     lift = mp.has(vehicle, "translational_lift")  # named: its row maps k_h
     out = mp.common_rows(vehicle, pp, {
         "name": (f"module {file_stem(vehicle)}_params", file_stem(vehicle), ""),
@@ -247,95 +252,107 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
             "RotorPy's own defaults (used only by its cmd_ctbr/cmd_vel/cmd_acc/cmd_ctatt abstractions; not qr's)",
             formula=", ".join(g(DEFAULT_GAINS[k]) for k in ("k_w", "k_v", "kp_att", "kd_att"))),
     ]
-    terms = qr_terms(vehicle, pp)
-    n = len(pp.yaw_signs)
+    return out
 
-    def val(name):
-        return mp.effect_value(vehicle, name)
 
-    for name in mp.present(vehicle):
-        if name in ("mass_error", "inertia_error"):
-            out.append(Row(name, val(name), "mass" if name == "mass_error" else "Ixx, Iyy, Izz", "(added)", EXACT,
-                           "added to the vehicle's value (mass, inertia rows)"))
-        elif name == "thrust_gain":
-            out.append(Row(name, val(name), "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²",
-                           formula=mp.fx_k_thrust(vehicle, mean=True)))
-        elif name == "yaw_torque_gain":
-            out.append(Row(name, val(name), "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
-                           formula=mp.fx_k_yaw(vehicle)))
-        elif name == "cg_offset":
-            out.append(Row(name, val(name), "rotor_pos", "(shifted)", EXACT,
-                           "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]"))
-        elif name == "motor_imbalance":
-            ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
-            out.append(Row(name, val(name), "k_eta (mean) + QR_TERMS['thrust_scale']",
-                           _vec(terms["thrust_scale"]), EXACT,
-                           "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
-                           "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})"))
-        elif name == "rotor_drag":
-            both = P[ps.P_RDM] == P[ps.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
-            out.append(Row(name, val(name), "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",
-                           g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
-                           "k_d = k / f; RotorPy applies -k_d ω_i [w_x, w_y] at each hub with its airspeed w = v + ω × r_i: "
-                           "its force has -k_d Σ ω_i (ω × r_i)_xy more than qr's -k Σu [v_x, v_y] (zero at equal rotor "
-                           "speeds with no roll/pitch rate or the hubs in the CG's plane)"
-                           + ("; its moment about the CG is rotor_drag_moment's (named, the same k)" if both else
-                              "; its moment about the CG, a yaw-rate damping -k_d Σ ω_i (r_ix² + r_iy²) ω_z and more, is "
-                              "RotorPy's addition (qr's rotor_drag_moment, not named)")
-                           + ". QrMultirotor (exact_aero) applies qr's terms exactly", formula="rotor_drag.k / f"))
-        elif name == "rotor_drag_moment":
-            same = P[ps.P_RDM] == P[ps.P_RDRAG]
-            out.append(Row(name, val(name), "k_d (rotor_drag_matrix), rotor_pos", g(qp["k_d"]) + " N s/m per rad/s",
-                           EXACT if same else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
-                           "k_d = k / f, the same as rotor_drag's: RotorPy's rotor drag at the hubs has the moment "
-                           "Σ r_i × (-k_d ω_i [w_ix, w_iy, 0]) about the CG, qr's term exactly" if same else
-                           f"RotorPy's rotor drag is a force at the hubs, its moment comes with it: k_d carries rotor_drag's "
-                           f"k ({g(qp['k_d'])} per rad/s), {mp.untied_moment(P)} "
-                           f"({size[name]}). QrMultirotor (exact_aero) applies qr's term exactly",
-                           formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0"))
-        elif name == "translational_lift":
-            out.append(Row(name, val(name), "k_h", g(qp["k_h"]) + " N/(m/s)² per rotor", EXACT,
-                           "k_h = k: RotorPy's thrust k_eta ω_i² + k_h (w_ix² + w_iy²) with the hub airspeed w = v + ω × r_i, "
-                           "qr's term", formula="translational_lift.k"))
-        elif name == "blade_flapping":
-            out.append(Row(name, val(name), "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
-                           f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
-                           "[v_iy, -v_ix, 0] grows with the rotor speeds, qr's k [v_y, -v_x, 0] does not: exact at "
-                           "equal rotor speeds summing to 4 ω_hover (CG at the rotors' centre); relative error "
-                           "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly",
-                           formula="−blade_flapping.k / (n · ω_h)"))
-        elif name == "quadratic_drag":
-            out.append(Row(name, val(name), "c_Dx, c_Dy, c_Dz", ", ".join(g(qp[k]) for k in ("c_Dx", "c_Dy", "c_Dz")),
-                           APPROXIMATE, "c_Dj = c_j: RotorPy's -c_Dj |v| v_j equals qr's -c_j |v_j| v_j for airspeed "
-                           "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
-                           "applies qr's term exactly", formula=", ".join(mp.fx_effect(vehicle, name, ("cx", "cy", "cz")))))
-        elif name == "linear_drag":
-            out.append(Row(name, val(name), "QR_TERMS['linear_drag']", _vec(P[ps.P_LIN]) + " N s/m",
-                           EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
-                           f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})",
-                           formula=", ".join(mp.fx_effect(vehicle, name, ("kx", "ky", "kz")))))
-        elif name in ("wind_force", "body_force_bias", "torque_bias"):
-            unit = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
-            off = {"wind_force": ps.P_WIND, "body_force_bias": ps.P_BBIAS, "torque_bias": ps.P_TBIAS}[name]
-            params = {"wind_force": ("fx", "fy", "fz"), "body_force_bias": ("bx", "by", "bz"),
-                      "torque_bias": ("tx", "ty", "tz")}[name]
-            out.append(Row(name, val(name), f"QR_TERMS['{name}']", _vec(P[off]) + " " + unit, EXACT,
-                           f"no RotorPy key: QrMultirotor adds it ({size[name]})",
-                           formula=", ".join(mp.fx_effect(vehicle, name, params))))
-        elif name == "ground_effect":
-            out.append(Row(name, val(name), "QR_TERMS['ground_effect']", f"{g(P[ps.P_GE])} m²", EXACT,
-                           f"no RotorPy key: QrMultirotor adds k T / h² along body z, h above ground_z ({size[name]})",
-                           formula="ground_effect.k"))
-        elif name == "marker_offset":
-            out.append(Row(name, val(name), "QR_TERMS['marker_offset']", _vec(P[ps.P_MARKER]) + " m",
-                           EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
-                           f"point x + R r ({size[name]}), and the ground effect's height uses it",
-                           formula=", ".join(mp.fx_effect(vehicle, name, ("rx", "ry", "rz")))))
-        elif name == "actuator_delay":
-            out.append(Row(name, val(name), "-", "-", IMPOSSIBLE,
-                           f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
-                           "first-order motors, delaying cmd_motor_speeds by the same time is equivalent"))
-    if P[ps.P_REM_ON]:
+def _rotor_effect_row(name: str, vehicle, pp: mp.Plant, qp: dict, size: dict) -> Row | None:
+    """The row of a named effect that acts through the rotors (their coefficients, positions, drag, lift)."""
+    P, val, n = pp.P, mp.effect_value(vehicle, name), len(pp.yaw_signs)
+    if name == "thrust_gain":
+        return Row(name, val, "k_eta", g(qp["k_eta"]), EXACT, "k_eta = gain C_T / f²",
+                   formula=mp.fx_k_thrust(vehicle, mean=True))
+    elif name == "yaw_torque_gain":
+        return Row(name, val, "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
+                   formula=mp.fx_k_yaw(vehicle))
+    elif name == "cg_offset":
+        return Row(name, val, "rotor_pos", "(shifted)", EXACT,
+                   "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]")
+    elif name == "motor_imbalance":
+        ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
+        return Row(name, val, "k_eta (mean) + QR_TERMS['thrust_scale']",
+                   _vec(qr_terms(vehicle, pp)["thrust_scale"]), EXACT,
+                   "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
+                   "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})")
+    elif name == "rotor_drag":
+        both = P[ps.P_RDM] == P[ps.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
+        return Row(name, val, "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",
+                   g(qp["k_d"]) + " N s/m per rad/s", APPROXIMATE,
+                   "k_d = k / f; RotorPy applies -k_d ω_i [w_x, w_y] at each hub with its airspeed w = v + ω × r_i: "
+                   "its force has -k_d Σ ω_i (ω × r_i)_xy more than qr's -k Σu [v_x, v_y] (zero at equal rotor "
+                   "speeds with no roll/pitch rate or the hubs in the CG's plane)"
+                   + ("; its moment about the CG is rotor_drag_moment's (named, the same k)" if both else
+                      "; its moment about the CG, a yaw-rate damping -k_d Σ ω_i (r_ix² + r_iy²) ω_z and more, is "
+                      "RotorPy's addition (qr's rotor_drag_moment, not named)")
+                   + ". QrMultirotor (exact_aero) applies qr's terms exactly", formula="rotor_drag.k / f")
+    elif name == "rotor_drag_moment":
+        same = P[ps.P_RDM] == P[ps.P_RDRAG]
+        return Row(name, val, "k_d (rotor_drag_matrix), rotor_pos", g(qp["k_d"]) + " N s/m per rad/s",
+                   EXACT if same else IMPOSSIBLE if not P[ps.P_RDRAG] else APPROXIMATE,
+                   "k_d = k / f, the same as rotor_drag's: RotorPy's rotor drag at the hubs has the moment "
+                   "Σ r_i × (-k_d ω_i [w_ix, w_iy, 0]) about the CG, qr's term exactly" if same else
+                   f"RotorPy's rotor drag is a force at the hubs, its moment comes with it: k_d carries rotor_drag's "
+                   f"k ({g(qp['k_d'])} per rad/s), {mp.untied_moment(P)} "
+                   f"({size[name]}). QrMultirotor (exact_aero) applies qr's term exactly",
+                   formula="rotor_drag.k / f" if mp.has(vehicle, "rotor_drag") else "0")
+    elif name == "translational_lift":
+        return Row(name, val, "k_h", g(qp["k_h"]) + " N/(m/s)² per rotor", EXACT,
+                   "k_h = k: RotorPy's thrust k_eta ω_i² + k_h (w_ix² + w_iy²) with the hub airspeed w = v + ω × r_i, "
+                   "qr's term", formula="translational_lift.k")
+    elif name == "blade_flapping":
+        return Row(name, val, "k_flap", g(qp["k_flap"]) + " N m s/m per rad/s", APPROXIMATE,
+                   f"k_flap = -k / (4 ω_hover), ω_hover = {g(pp.hover)} rad/s: RotorPy's moment -k_flap Σω_i "
+                   "[v_iy, -v_ix, 0] grows with the rotor speeds, qr's k [v_y, -v_x, 0] does not: exact at "
+                   "equal rotor speeds summing to 4 ω_hover (CG at the rotors' centre); relative error "
+                   "|Σω/(4 ω_hover) - 1| of the moment otherwise. QrMultirotor (exact_aero) applies qr's term exactly",
+                   formula="−blade_flapping.k / (n · ω_h)")
+    return None
+
+
+def _body_effect_row(name: str, vehicle, pp: mp.Plant, qp: dict, size: dict) -> Row | None:
+    """The row of a named effect on the body (mass and inertia errors, drag, forces, the ground, the marker, the
+    delay)."""
+    P, val = pp.P, mp.effect_value(vehicle, name)
+    if name in ("mass_error", "inertia_error"):
+        return Row(name, val, "mass" if name == "mass_error" else "Ixx, Iyy, Izz", "(added)", EXACT,
+                   "added to the vehicle's value (mass, inertia rows)")
+    elif name == "quadratic_drag":
+        return Row(name, val, "c_Dx, c_Dy, c_Dz", ", ".join(g(qp[k]) for k in ("c_Dx", "c_Dy", "c_Dz")),
+                   APPROXIMATE, "c_Dj = c_j: RotorPy's -c_Dj |v| v_j equals qr's -c_j |v_j| v_j for airspeed "
+                   "along one body axis, and is larger by |v|/|v_j| otherwise. QrMultirotor (exact_aero) "
+                   "applies qr's term exactly", formula=", ".join(mp.fx_effect(vehicle, name, ("cx", "cy", "cz"))))
+    elif name == "linear_drag":
+        return Row(name, val, "QR_TERMS['linear_drag']", _vec(P[ps.P_LIN]) + " N s/m",
+                   EXACT, "RotorPy has no constant linear drag (k_d, k_z scale with the rotor speed): "
+                   f"QrMultirotor adds -diag(k) v_b ({size['linear_drag']})",
+                   formula=", ".join(mp.fx_effect(vehicle, name, ("kx", "ky", "kz"))))
+    elif name in ("wind_force", "body_force_bias", "torque_bias"):
+        unit = {"wind_force": "N, world", "body_force_bias": "N, body", "torque_bias": "N m, body"}[name]
+        off = {"wind_force": ps.P_WIND, "body_force_bias": ps.P_BBIAS, "torque_bias": ps.P_TBIAS}[name]
+        params = {"wind_force": ("fx", "fy", "fz"), "body_force_bias": ("bx", "by", "bz"),
+                  "torque_bias": ("tx", "ty", "tz")}[name]
+        return Row(name, val, f"QR_TERMS['{name}']", _vec(P[off]) + " " + unit, EXACT,
+                   f"no RotorPy key: QrMultirotor adds it ({size[name]})",
+                   formula=", ".join(mp.fx_effect(vehicle, name, params)))
+    elif name == "ground_effect":
+        return Row(name, val, "QR_TERMS['ground_effect']", f"{g(P[ps.P_GE])} m²", EXACT,
+                   f"no RotorPy key: QrMultirotor adds k T / h² along body z, h above ground_z ({size[name]})",
+                   formula="ground_effect.k")
+    elif name == "marker_offset":
+        return Row(name, val, "QR_TERMS['marker_offset']", _vec(P[ps.P_MARKER]) + " m",
+                   EXACT, "not a force: RotorPy's state is the CG; tracked_point(state) gives the tracked "
+                   f"point x + R r ({size[name]}), and the ground effect's height uses it",
+                   formula=", ".join(mp.fx_effect(vehicle, name, ("rx", "ry", "rz"))))
+    elif name == "actuator_delay":
+        return Row(name, val, "-", "-", IMPOSSIBLE,
+                   f"RotorPy's wrench follows the rotor speeds at once ({size[name]}): not exported; with its "
+                   "first-order motors, delaying cmd_motor_speeds by the same time is equivalent")
+    return None
+
+
+def _learned_rows(vehicle, pp: mp.Plant, size: dict) -> list[Row]:
+    """The learned terms: a torque remainder, a residual network."""
+    out = []
+    if pp.P[ps.P_REM_ON]:
         out.append(Row("torque_remainder", "W (3 × 11)", "QR_TERMS['torque_remainder']", "the file's W", EXACT,
                        f"a learned map, no RotorPy key: QrMultirotor adds W φ ({size['torque_remainder']})"))
     if vehicle.residual is not None:

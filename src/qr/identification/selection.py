@@ -371,7 +371,17 @@ def select(stats: BlockStats, cfg: SelectionConfig, rows: dict | None = None) ->
     return sel
 
 
-def torque_arbitration(row_stats, base=(), effects=("thrust_gain",)) -> dict:
+@dataclass(frozen=True)
+class Arbitration:
+    """An effect the roll/pitch torque rows cannot arbitrate (:func:`torque_arbitration`): its force-row and
+    (unbounded) torque-row estimates, given the torque effects the data contain."""
+
+    force_rows: list[float]
+    torque_rows: list[float]
+    given: list[str]
+
+
+def torque_arbitration(row_stats, base=(), effects=("thrust_gain",)) -> dict[str, Arbitration]:
     """Can the roll/pitch torque rows speak for the torque half of ``effects``?
 
     A C_T error scales force and torque alike.  When the torque rows (given the
@@ -396,6 +406,5 @@ def torque_arbitration(row_stats, base=(), effects=("thrust_gain",)) -> dict:
             idx = t_st.cols.index(base + [e])
             free = solve(G[np.ix_(idx, idx)], h[idx])[-len(CATALOG[e].params):]
             neutral = np.asarray(CATALOG[e].neutral, float)
-            out[e] = {"force_rows": (fit(f_st, [e]) + neutral).tolist(), "torque_rows": (free + neutral).tolist(),
-                      "given": base}
+            out[e] = Arbitration((fit(f_st, [e]) + neutral).tolist(), (free + neutral).tolist(), base)
     return out

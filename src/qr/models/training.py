@@ -12,11 +12,13 @@ writes and tracks.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from .. import datasets
+from ..config import Group
 from ..errors import QrInputError
 from . import Model
 
@@ -73,13 +75,13 @@ class Training:
     inputs: tuple[str, ...]
     leaks_target: bool
     model: Model  # fitted (kind, cfg, info)
-    split: dict  # the split group as given
+    split: Group  # the split group as given
     seed: int | None
     thesis: float | None  # the thesis's RMSE of the row (a named sweep's), its nominal model's
     thesis_nominal: float | None
     dataset: str
     scores: Scores
-    windows: dict  # part -> {flight: [t_start, t_end]} (provenance)
+    windows: Mapping[str, Mapping[str, list[float]]]  # part -> {flight: [t_start, t_end]} (provenance)
     example: np.ndarray  # the first training inputs (MLflow's input example)
 
 

@@ -148,7 +148,7 @@ def _align(log, traj, settings, controller, lee, given_mass, t, p, v, R) -> Alig
             origin = tuple(float(x) for x in np.nanmean(p - r, axis=0))
         return Alignment(settings.offset_s, None, tuple(origin), given_mass, "given")
     if log.has_commands and lee:
-        mixer = settings.crazyflie_mixer()
+        mixer = settings.firmware
         thrust = mixer.thrust_of(log.fast[COMMANDS].to_numpy(float), log.vbat())
         tf = log.fast["t"].to_numpy(float)
         al = from_thrust(t, p, v, R, np.interp(t, tf, thrust), traj, settings.timescale, controller.gains,
@@ -178,7 +178,7 @@ def _mass(given, al: Alignment, vehicle) -> tuple[float, str]:
 def _actuation(log: ReplayLog, vehicle, mixer: str, settings: ReplaySettings) -> Actuation:
     if mixer == "ideal":
         return Actuation()
-    cf = settings.crazyflie_mixer()
+    cf = settings.firmware
     vbat = log.vbat()
     kind = settings.motor_map
     if kind == "auto":

@@ -40,7 +40,7 @@ class ReplaySettings:
     sim_rate_hz: float
     mixer: str
     motor_map: str
-    firmware: dict
+    firmware: CrazyflieMixer  # the Crazyflie firmware's power distribution (the crazyflie mixer), checked
     part_position_m: float
     part_attitude_deg: float
     max_error_m: float
@@ -80,9 +80,7 @@ class ReplaySettings:
                 out[k] = None if v in (None, "") else str(v)
             elif k == "firmware":
                 out[k] = v
-        s = cls(**out)
-        s.crazyflie_mixer()  # checked now, not minutes later
-        return s
+        return cls(**{**out, "firmware": _crazyflie_mixer(out["firmware"])})  # checked now, not minutes later
 
     def for_flight(self, i: int, n: int) -> ReplaySettings:
         """The settings of the ``i``-th of ``n`` flights (a time scale per flight picked)."""
@@ -93,25 +91,26 @@ class ReplaySettings:
                                "give one time scale, or one per flight in the order of the flights")
         return replace(self, timescale=self.timescale[i])
 
-    def crazyflie_mixer(self) -> CrazyflieMixer:
-        f = self.firmware
-        try:
-            pwm = PwmModel(**{k: float(v) for k, v in f["pwm"].items()})
-            mixer = CrazyflieMixer(float(f["arm_length"]), float(f["thrust_to_torque"]), pwm)
-        except (KeyError, TypeError, ValueError) as e:
-            raise QrInputError("replay.firmware", f"the firmware's power distribution is incomplete or not numeric "
-                               f"({e})", f"give arm_length, thrust_to_torque and pwm: {{d00, d10, d01, d20, d11}} "
-                               f"({SOURCE})") from None
-        if not (mixer.arm_length > 0 and mixer.thrust_to_torque > 0 and pwm.d10 > 0):
-            raise QrInputError("replay.firmware", "arm_length, thrust_to_torque and pwm.d10 must be positive",
-                               f"see {SOURCE}")
-        return mixer
-
     def to_dict(self) -> dict:
         d = asdict(self)
         d["origin"] = list(self.origin) if self.origin is not None else None
         d["timescale"] = list(self.timescale) if isinstance(self.timescale, tuple) else self.timescale
         return d
+
+
+def _crazyflie_mixer(f) -> CrazyflieMixer:
+    """``replay.firmware`` (arm_length, thrust_to_torque, pwm: {d00, ...}) as the mixer, checked."""
+    try:
+        pwm = PwmModel(**{k: float(v) for k, v in f["pwm"].items()})
+        mixer = CrazyflieMixer(float(f["arm_length"]), float(f["thrust_to_torque"]), pwm)
+    except (KeyError, TypeError, ValueError) as e:
+        raise QrInputError("replay.firmware", f"the firmware's power distribution is incomplete or not numeric "
+                           f"({e})", f"give arm_length, thrust_to_torque and pwm: {{d00, d10, d01, d20, d11}} "
+                           f"({SOURCE})") from None
+    if not (mixer.arm_length > 0 and mixer.thrust_to_torque > 0 and pwm.d10 > 0):
+        raise QrInputError("replay.firmware", "arm_length, thrust_to_torque and pwm.d10 must be positive",
+                           f"see {SOURCE}")
+    return mixer
 
 
 def _vector3(key: str, v) -> tuple:
