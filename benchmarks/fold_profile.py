@@ -122,6 +122,8 @@ def main():
     ap.add_argument("--top", type=int, default=0, help="also print the N functions with the most cumulative time")
     ap.add_argument("--no-profile", action="store_true", help="timers only (the fold's own fold.json seconds)")
     ap.add_argument("--stats", help="save the cProfile stats here")
+    ap.add_argument("--cpu", action="store_true", help="this process's CPU time instead of wall time (steadier on a "
+                    "loaded machine; the ensemble's member processes are not in it)")
     a = ap.parse_args()
     folds = fold_params(None if a.configfile == "none" else a.configfile)
     name = a.fold or next(iter(folds))
@@ -135,7 +137,8 @@ def main():
     # MLflow's store, never the workflow's (QR_RESULTS: one made by an earlier run, without its creation's cost)
     os.environ.setdefault("QR_RESULTS", str(out / "store"))
     os.chdir(ROOT)  # the fold's data file (conf/data/...) is named relative to the repository
-    t0 = time.perf_counter()
+    clock = time.process_time if a.cpu else time.perf_counter
+    t0 = clock()
     from qr.holdout import Fold
     from qr.stages.evaluate_sets import run_fold
 
@@ -144,14 +147,14 @@ def main():
     kw = dict(estimates=[where(f) for f in p["crossfit"]], track=f"fold:{name}")
     print(f"fold {name}: {len(p['flights'])} flights, overrides {p['overrides']}, residual {p['residual']}",
           flush=True)
-    prof = None if a.no_profile else cProfile.Profile()
+    prof = None if a.no_profile else cProfile.Profile(clock)
     if prof:
         prof.enable()
     doc = run_fold(*args, **kw)
     if prof:
         prof.disable()
-    wall = time.perf_counter() - t0
-    print(f"\nwall {wall:.1f} s (imports included); the fold's own steps (fold.json, s): "
+    wall = clock() - t0
+    print(f"\n{'CPU' if a.cpu else 'wall'} {wall:.1f} s (imports included); the fold's own steps (fold.json, wall s): "
           + ", ".join(f"{k} {v:.1f}" for k, v in doc["seconds"].items()))
     if prof:
         stats = pstats.Stats(prof).stats
