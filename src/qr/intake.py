@@ -13,8 +13,8 @@ Each fact once:
   once per flight).  The same numbers either way.
 
 Several commands run in one process on the same flights (a workflow fold: its diagnosis, its rollouts, its
-residual) share a :class:`Memo`: each flight is read and convention-checked once, each cross-fit file read
-once, each filtered segment estimated once.
+residual) share a :class:`Memo`: each flight is read and convention-checked once, each segment's estimates
+read or filtered once.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from .segments import FlightSegments, flight_segments
 
 if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
     from .conventions import FlightChecks
-    from .estimation.crossfit import Estimates, SegmentEstimate
+    from .estimation.crossfit import SegmentEstimate
 
 
 def shown(paths) -> list[str]:
@@ -73,15 +73,14 @@ class Intake:
 class Memo:
     """What the intake already took in this process, for the next command on the same flights: the rows of each
     flight file, each flight's convention checks (against a vehicle of the same physical properties: the checks
-    read no effect, so the nominal, extended and hybrid vehicles of one diagnosis share them), each cross-fit
-    file, each filtered segment.  Everything is keyed by what it depends on; what a command may change is
-    handed out as a copy."""
+    read no effect, so the nominal, extended and hybrid vehicles of one diagnosis share them), each flight's
+    segment estimates.  Everything is keyed by what it depends on; what a command may change is handed out as
+    a copy."""
 
     def __init__(self):
         self._rows: dict[str, pd.DataFrame] = {}
         self._checks: dict[tuple, FlightChecks] = {}
-        self._files: dict[tuple, Estimates] = {}
-        self._made: dict[tuple, tuple] = {}
+        self._made: dict[tuple, list] = {}
 
     def rows(self, path, read: Callable) -> pd.DataFrame:
         key = str(path)
@@ -95,19 +94,12 @@ class Memo:
             self._checks[key] = check()
         return self._checks[key]
 
-    def file(self, path, filter_cfg: dict, report: dict, vehicle) -> Estimates:
-        from .estimation.crossfit import Estimates, key
-
-        k = (str(path), key(filter_cfg, report, vehicle))
-        if k not in self._files:
-            self._files[k] = Estimates(path, filter_cfg, report, vehicle)
-        return self._files[k]
-
     def estimates(self, flight, stored, segments, vehicle, filter_cfg: dict, report, halves: bool,
                   made: Callable) -> list[tuple]:
         """``(segment, states, halves, report, source)`` as ``made()`` (:func:`qr.estimation.crossfit.
         estimate_segments` on ``segments``) yields them, each segment estimated once (a cross-fitted one serves
-        a request without halves); ``stored``: the cross-fit file they are read from where it has them."""
+        a request without halves); ``stored``: the cross-fit file they are read from where it has them (read
+        again for other segments or settings: ~10 ms)."""
         k = (str(flight), str(stored), tuple(s.window for s in segments),
              json.dumps([filter_cfg, report, float(vehicle.hover_speed)], sort_keys=True, default=str))
         got = self._made.get((*k, True)) or self._made.get((*k, halves))
@@ -187,8 +179,7 @@ def _estimates(segments: list, named: list[str], vehicle, filter_cfg: dict, repo
     out = []
     for i, used in enumerate(segments):
         report = reports[i] if reports else None
-        file = (memo.file if memo else Estimates)(stored[i], filter_cfg, report, vehicle) \
-            if stored and stored[i] and report else None
+        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and stored[i] and report else None
         made = lambda: estimate_segments(used, vehicle, filter_cfg, report, halves, file)  # noqa: E731
         got = memo.estimates(names[i], stored[i] if file else None, used, vehicle, filter_cfg, report, halves,
                              made) if memo else made()
