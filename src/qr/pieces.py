@@ -6,7 +6,7 @@ from __future__ import annotations
 import pandas as pd
 
 from .errors import QrInputError
-from .intake import IntakeSettings, take
+from .intake import IntakeSettings, Memo, take
 from .rollout import EvaluateConfig, pieces
 from .segments import ROLLOUT_SPAN_S, FlightSegments, min_segment_s
 
@@ -26,12 +26,13 @@ def _require(path, fs: FlightSegments) -> None:
 
 def rollout_pieces(names: list[str], measured: list[pd.DataFrame], vehicle, ecfg: EvaluateConfig, filter_cfg: dict,
                    reports: list | None = None, stored: list | None = None, say=lambda msg: None,
-                   vehicle_file=None) -> list[list]:
+                   vehicle_file=None, memo: Memo | None = None) -> list[list]:
     """Per flight (``names``, their rows ``measured``), the protocol's pieces ``(states, measured, keep)`` of each
     used segment (:func:`qr.rollout.pieces`).  Every flight is checked (conventions, a usable segment) before
-    any is filtered; ``reports`` / ``stored``: per flight, the filter stage's report and cross-fit file."""
+    any is filtered; ``reports`` / ``stored``: per flight, the filter stage's report and cross-fit file; ``memo``:
+    what an earlier command of this process took (:class:`qr.intake.Memo`)."""
     taken = take(names, measured, vehicle, intake_settings(ecfg, filter_cfg), vehicle_file, reports, stored, say,
-                 _require)
+                 _require, memo=memo)
     out: list[list] = [[] for _ in names]
     for e in taken.estimates:
         out[e.flight].append(pieces(e.states, e.rows, ecfg.trim_s))

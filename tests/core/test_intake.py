@@ -57,3 +57,56 @@ def test_the_rollout_estimate_is_the_one_qr_evaluate_filters_itself(gapped):
         assert e.halves is None
         own = estimate(e.rows, v, fixed_settings(cfg, report))[0]
         assert np.array_equal(e.states[MOTION].to_numpy(), own[MOTION].to_numpy())
+
+
+def test_a_memo_reads_checks_and_estimates_each_flight_once_with_the_same_numbers(gapped, monkeypatch, tmp_path):
+    """Commands run one after another on the same flights (a workflow fold) share a :class:`Memo`: the file is
+    read once, the flight checked once per vehicle of other physical properties (a vehicle with effects added
+    shares the nominal one's checks), each segment estimated once (the diagnosis's cross-fitted estimate serves
+    the rollout); the numbers are those of an intake without it, and what it hands out is a copy."""
+    import qr.conventions
+    import qr.estimation.crossfit
+    import qr.flight
+    from qr.intake import Memo, read_flights
+    from qr.vehicle import vehicle_from_dict
+
+    v, flight, cfg = gapped
+    path = tmp_path / "g.parquet"
+    flight.to_parquet(path)
+    report = {"tuning": {"position": {"q": 40.0, "r": 1e-7}, "attitude": {"q": [900.0, 90.0, 300.0], "r": 2e-6},
+                         "motor": {"q": 3000.0, "r": 0.5}}}
+    calls = {"read": 0, "check": 0, "filter": 0}
+
+    def counted(name, fn):
+        def wrapped(*a, **k):
+            calls[name] += 1
+            return fn(*a, **k)
+        return wrapped
+
+    monkeypatch.setattr(qr.flight, "read_flight", counted("read", qr.flight.read_flight))
+    monkeypatch.setattr(qr.conventions, "require", counted("check", qr.conventions.require))
+    monkeypatch.setattr(qr.estimation.crossfit, "prepare_flight", counted("filter", qr.estimation.crossfit.prepare_flight))
+    diagnosis, rollout = IntakeSettings(1.5, cfg), IntakeSettings(1.5, cfg, halves=False)
+    alone = [take([str(path)], read_flights([path]), v, s, reports=[report]) for s in (diagnosis, rollout)]
+    assert calls == {"read": 2, "check": 2, "filter": 4}  # two segments used, each filtered per command
+
+    calls.update(read=0, check=0, filter=0)
+    memo = Memo()
+    drag = vehicle_from_dict({**v.to_dict(), "effects": [{"name": "linear_drag",
+                                                          "parameters": {"kx": 0.1, "ky": 0.1, "kz": 0.05}}]})
+    shared = [take([str(path)], read_flights([path], memo), veh, s, reports=[report], memo=memo)
+              for veh, s in ((v, diagnosis), (v, rollout), (drag, rollout))]
+    assert calls == {"read": 1, "check": 1, "filter": 2}
+    heavier = vehicle_from_dict({**v.to_dict(), "mass": v.mass * 1.2})
+    take([str(path)], read_flights([path], memo), heavier, rollout, reports=[report], memo=memo)
+    assert calls["check"] == 2 and calls["filter"] == 4  # another mass: checked and filtered again (its hover speed)
+
+    for taken, own in zip(shared, [*alone, alone[1]]):
+        assert [e.window for e in taken.estimates] == [e.window for e in own.estimates]
+        for e, o in zip(taken.estimates, own.estimates):
+            assert e.states.equals(o.states) and e.rows.equals(o.rows)
+            assert (e.halves is None) == (o.halves is None)
+            assert e.halves is None or all(h.equals(g) for h, g in zip(e.halves, o.halves))
+        assert taken.flights.conventions == own.flights.conventions
+    assert shared[1].estimates[0].states is not shared[2].estimates[0].states  # copies: a command may change its own
+    assert read_flights([path], memo)[0] is not read_flights([path], memo)[0]

@@ -174,9 +174,10 @@ def check_flights(flights: list[str], settings: Settings) -> dict[str, FlightInf
 
 def run(flights: list[str], measured: list, infos: dict[str, FlightInfo], vehicle: Vehicle, vehicle_file: str,
         settings: Settings, reports: list | None = None, estimates: list | None = None,
-        say=lambda msg: None) -> ResidualTraining:
+        say=lambda msg: None, memo=None) -> ResidualTraining:
     """Train on ``flights`` (``measured``: their rows; ``infos``: :func:`check_flights`) on top of ``vehicle``.
-    ``reports`` / ``estimates``: the filter stage's report and cross-fit file of each flight."""
+    ``reports`` / ``estimates``: the filter stage's report and cross-fit file of each flight; ``memo``: what an
+    earlier command of this process took (:class:`qr.intake.Memo`)."""
     from ..pieces import rollout_pieces
     from ..rollout import windows
     from ..vehicle import vehicle_from_dict
@@ -187,7 +188,7 @@ def run(flights: list[str], measured: list, infos: dict[str, FlightInfo], vehicl
         raw.pop("torque_remainder")
         vehicle = vehicle_from_dict(raw, vehicle_file)
     t0 = time.perf_counter()
-    cut = rollout_pieces(flights, measured, vehicle, ecfg, settings.filter, reports, estimates, say, vehicle_file)
+    cut = rollout_pieces(flights, measured, vehicle, ecfg, settings.filter, reports, estimates, say, vehicle_file, memo)
     pieces = [(f, windows(st, meas, rcfg.horizon, ecfg.max_input_gap, keep)) for f, ps in zip(flights, cut)
               for st, meas, keep in ps]
     estimate_s = time.perf_counter() - t0

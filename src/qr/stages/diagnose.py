@@ -24,17 +24,18 @@ OUTPUTS = ("diagnosis.json", "report.md", "extended_vehicle.yaml", "figures/")
 
 def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None, log=None,
                   return_result: bool = False, reports: list | None = None, figures: bool = True,
-                  force: bool = False, estimates: list | None = None):
+                  force: bool = False, estimates: list | None = None, memo=None):
     """Diagnose ``flights`` and write ``out`` (refused before any work if ``out`` is not qr's to write;
     ``force``: write beside a folder's other files); the document written (and the Diagnosis: ``return_result``).
 
     ``reports`` / ``estimates``: per flight, the filter stage's report and cross-fit file; a segment
-    found there with the same filter settings is read, not filtered again (the same numbers)."""
+    found there with the same filter settings is read, not filtered again (the same numbers).  ``memo``: what an
+    earlier command of this process took (:class:`qr.intake.Memo`)."""
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
     say = log or (lambda msg: print(f"qr diagnose: {msg}", file=sys.stderr))
     with blas_one_thread():  # qr's own threads use the cores
         # the inputs first: a file that is missing or wrong is refused before the heavy imports and Hydra
-        veh, measured = load_vehicle(vehicle), read_flights(flights)
+        veh, measured = load_vehicle(vehicle), read_flights(flights, memo)
         from ..diagnose.diagnosis import Settings, run
         from ..diagnose.document import document, vehicle_header
         from ..diagnose.drawing import Drawing
@@ -44,7 +45,7 @@ def run_diagnosis(flights, vehicle, out, overrides=(), track: bool | None = None
         with Drawing(veh) as drawing:
             taken = take([str(f) for f in flights], measured, veh, intake_settings(settings.diagnose, settings.filter),
                          vehicle, reports, estimates, say, length_check(settings.diagnose, len(flights)),
-                         drawing.start if figures else None)
+                         drawing.start if figures else None, memo)
             drawing.ready()
             say("identifying effects")
             diagnosis = run(list(taken.estimates), taken.flights, veh, settings, vehicle, say,

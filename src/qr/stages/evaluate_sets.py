@@ -7,7 +7,8 @@ diagnose stage, its folder written as ``qr diagnose`` writes it), and the vehicl
 on the held-out flights, each window checked against the training flights' envelope.  A fold
 (:func:`run_fold`, :class:`qr.holdout.Fold`) adds a residual trained through the rollout on the same training
 flights, scored on the same held-out flights (:func:`evaluate_learned`).  :func:`summary_table`: the sets'
-held-out rollouts side by side.
+held-out rollouts side by side.  The commands of one job share one :class:`qr.intake.Memo`: each flight is read,
+convention-checked and estimated once per job.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..holdout import held_out
-from ..intake import read_reports
+from ..intake import Memo, read_reports
 from .evaluate import run_evaluation
 
 HELD_OUT_MODELS = "held_out_models"  # (in the training diagnosis's folder)
@@ -38,12 +39,14 @@ def _trained(a, reports: dict, stored: dict) -> dict:
 
 
 def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides=(), single_overrides=(),
-                      track: str | None = None, estimates=None, split=None, reports: dict | None = None) -> dict:
+                      track: str | None = None, estimates=None, split=None, reports: dict | None = None,
+                      memo: Memo | None = None) -> dict:
     """The workflow's rollout yardstick: diagnose the training flights, evaluate the nominal, extended,
     refined and hybrid vehicles on the held-out ones (with ``single_overrides`` instead of ``overrides`` when
     one flight trains: a lone flight's settings, as the workflow's per-flight diagnoses use).  ``split``:
     which flights are held out (:func:`qr.holdout.held_out`); ``reports``: flight -> its ``nis_files`` report,
-    already read."""
+    already read; ``memo``: what the job took already (default: a new one, shared by the diagnosis and the
+    rollouts)."""
     from ..errors import QrInputError
     from .diagnose import run_diagnosis
 
@@ -57,13 +60,14 @@ def evaluate_held_out(flights, nis_files, vehicle, diag_out, eval_out, overrides
     if len(train) == 1 and single_overrides:
         overrides = single_overrides
     stored = dict(zip(flights, estimates)) if estimates else {}
+    memo = memo or Memo()
     doc, diagnosis = run_diagnosis(train, vehicle, diag_out, list(overrides), track=False, figures=False,
                                    reports=[reports[f] for f in train], log=_quiet, return_result=True,
-                                   estimates=[stored[f] for f in train] if stored else None)
+                                   estimates=[stored[f] for f in train] if stored else None, memo=memo)
     files, vehicles, labels = held_out_models(vehicle, diagnosis, doc, Path(diag_out) / HELD_OUT_MODELS)
     return run_evaluation(test, files, eval_out, log=_quiet, reports=[reports[f] for f in test], track=track,
                           estimates=[stored[f] for f in test] if stored else None, labels=labels,
-                          trained_on=_trained(a, reports, stored), split=a, loaded=vehicles)
+                          trained_on=_trained(a, reports, stored), split=a, loaded=vehicles, memo=memo)
 
 
 def held_out_models(vehicle, diagnosis, doc: dict, out_dir: Path) -> tuple[list[str], list, list[str]]:
@@ -99,10 +103,10 @@ def held_out_models(vehicle, diagnosis, doc: dict, out_dir: Path) -> tuple[list[
 
 
 def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, track: str | None = None,
-                     estimates=None, split=None, reports: dict | None = None) -> dict:
+                     estimates=None, split=None, reports: dict | None = None, memo: Memo | None = None) -> dict:
     """``vehicles`` (labelled ``labels``) on the flights the held-out protocol holds out under ``split``,
     beside the nominal ``vehicle`` and the references: the workflow's rollout-trained residuals, scored on
-    the same flights as :func:`evaluate_held_out`'s models (``reports``: as there)."""
+    the same flights as :func:`evaluate_held_out`'s models (``reports``, ``memo``: as there)."""
     flights = [str(f) for f in flights]
     a = held_out(flights, split)
     test = list(a.test)
@@ -111,7 +115,7 @@ def evaluate_learned(flights, nis_files, vehicle, vehicles, labels, eval_out, tr
     return run_evaluation(test, [vehicle, *vehicles], eval_out, log=_quiet,
                           reports=[reports[f] for f in test], track=track,
                           estimates=[stored[f] for f in test] if stored else None, labels=["nominal", *labels],
-                          trained_on=_trained(a, reports, stored), split=a)
+                          trained_on=_trained(a, reports, stored), split=a, memo=memo)
 
 
 def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overrides=(), residual_overrides=(),
@@ -122,7 +126,8 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     flights (validation: whole trajectories of the training side; ``residual_overrides``: ``qr learn
     residual``'s) and scored on the same flights (``OUT/residual/``, ``OUT/learned/``); ``OUT/fold.json``
     (the split and what each step took, s) last.  Returns ``fold.json``'s document.  The filter stage's reports
-    are read once, for every step."""
+    are read once, and each flight read, convention-checked and estimated once, for every step (one
+    :class:`qr.intake.Memo`)."""
     from ..atomic import write_json
     from .learn_residual_sets import train_held_out
 
@@ -133,21 +138,22 @@ def run_fold(flights, nis_files, vehicle, out, fold, overrides=(), single_overri
     seconds = {}
     t0 = time.perf_counter()
     reports = dict(zip(flights, read_reports(nis_files)))
+    memo = Memo()
     log(f"fold {fold.name}: {a.held_out}; diagnosing {len(a.train)} flights, scoring {len(a.test)}")
     evaluate_held_out(flights, nis_files, vehicle, out / "training_diagnosis", out / "held_out", overrides,
-                      single_overrides, track=track, estimates=estimates, split=fold.split, reports=reports)
+                      single_overrides, track=track, estimates=estimates, split=fold.split, reports=reports, memo=memo)
     seconds["diagnose_and_evaluate"] = time.perf_counter() - t0
     if fold.hybrid:
         t0 = time.perf_counter()
         log(f"fold {fold.name}: training a residual through the rollout")
         train_held_out(flights, out / "training_diagnosis" / "extended_vehicle.yaml", out / "residual",
                        list(residual_overrides), reports=[reports[f] for f in flights], estimates=estimates,
-                       split=fold.split, track=False, log=log)
+                       split=fold.split, track=False, log=log, memo=memo)
         seconds["residual"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         evaluate_learned(flights, nis_files, vehicle, [out / "residual" / "hybrid_vehicle.yaml"], [RESIDUAL_LABEL],
                          out / "learned", track=f"{track}:learned" if track else None, estimates=estimates,
-                         split=fold.split, reports=reports)
+                         split=fold.split, reports=reports, memo=memo)
         seconds["evaluate_residual"] = time.perf_counter() - t0
     doc = {"schema": FOLD_SCHEMA, "fold": fold.to_dict(), "split": a.to_dict(), "seconds": seconds,
            "evaluations": ["held_out"] + (["learned"] if fold.hybrid else [])}

@@ -32,16 +32,16 @@ def compose(overrides=()):
 
 def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=None, cfg=None,
                  reports: list | None = None, estimates: list | None = None, track: bool = True,
-                 run_name: str = "residual", parent_id: str | None = None, split=None) -> dict:
+                 run_name: str = "residual", parent_id: str | None = None, split=None, memo=None) -> dict:
     """Train on ``flights`` on top of ``vehicle``; write ``out`` (checked before any work); the
     training.json document.  ``cfg``: the composed tree (else composed from ``overrides``);
     ``reports`` / ``estimates``: the filter stage's files of each flight (as :func:`qr.stages.evaluate.
     run_evaluation` takes them).  ``split``: a :class:`qr.holdout.SplitConfig` instead of the tree's
     ``evaluate.split``: the validation flights are drawn by it (:func:`qr.holdout.validation`), and a
-    flight it scores is refused."""
+    flight it scores is refused.  ``memo``: what an earlier command of this process took (:class:`qr.intake.Memo`)."""
     flights = [str(f) for f in flights]
     out = check_out_dir(out, inputs=[*flights, vehicle], force=force, expected=OUTPUTS)
-    from ..flight import read_flight
+    from ..intake import read_flights
     from ..residual_training import Settings, check_flights, run
     from ..residual_training.document import document
     from ..vehicle import load_vehicle
@@ -50,7 +50,7 @@ def run_residual(flights, vehicle, out, overrides=(), force: bool = False, log=N
     settings = Settings.of(compose(overrides) if cfg is None else cfg, split)
     infos = check_flights(flights, settings)
     veh = load_vehicle(vehicle)
-    r = run(flights, [read_flight(f) for f in flights], infos, veh, vehicle, settings, reports, estimates, say)
+    r = run(flights, read_flights(flights, memo), infos, veh, vehicle, settings, reports, estimates, say, memo)
     doc = document(r)
     _write(out, force, r, doc)
     if track:
