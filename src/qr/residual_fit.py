@@ -54,7 +54,7 @@ class ResidualConfig:
                                 default_factory=lambda: ["v_b", "omega", "g_b", "u2"])
     width: int = setting(32, "integer", ge=1, le=1024)  # units per hidden layer
     depth: int = setting(2, "integer", ge=0, le=6)  # hidden layers (0: a linear map)
-    activation: str = "tanh"  # tanh | relu
+    activation: str = "relu"  # relu | tanh (docs/learn.md, "Beyond the training envelope": chosen on validation)
     horizon: int = setting(50, "integer", ge=1, le=1000)  # H: steps of each training window
     horizon_power: float = setting(0.0, ge=-4, le=4)  # w_h ∝ h^p over h = 1..H (0: every step alike)
     signal_weights: LossWeights = field(default_factory=LossWeights)  # λ_s of p, v, R, ω
