@@ -33,9 +33,9 @@ def _cpu():
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
-    t, c = time.monotonic(), _cpu()
+    t, c = time.time(), _cpu()
     yield
-    _rows.append((item.nodeid, _cpu() - c, time.monotonic() - t))
+    _rows.append((item.nodeid, _cpu() - c, time.time() - t, t))
 
 def pytest_sessionfinish(session):
     out = os.path.join(os.environ["QR_TEST_CPU_DIR"], os.environ.get("PYTEST_XDIST_WORKER", "main") + ".json")
@@ -54,18 +54,24 @@ def main() -> None:
         rc = subprocess.call([str(ROOT / ".venv" / "bin" / "pytest"), "-q", "-p", "qr_test_cpu", "-p", "no:cacheprovider",
                               *args], cwd=ROOT, env=env)
         wall = time.monotonic() - t
-        rows = [r for f in Path(tmp).glob("*.json") for r in json.loads(f.read_text())]
+        workers = {f.stem: json.loads(f.read_text()) for f in Path(tmp).glob("*.json")}
+        rows = [r for w in workers.values() for r in w]
     total = sum(r[1] for r in rows)
     print(f"\npytest exit {rc}: {len(rows)} tests, {total:.0f} s of CPU in {wall:.0f} s of wall "
           f"({total / max(wall, 1e-9):.2f} cores busy on average)\n")
+    # a worker that has run its last test waits for the other: cores idle that no cut of CPU recovers
+    ends = {w: max(r[3] + r[2] for r in rs) for w, rs in workers.items() if rs}
+    if len(ends) > 1:
+        last = max(ends.values())
+        print("idle at the end: " + ", ".join(f"{w} {last - e:.0f} s" for w, e in sorted(ends.items())) + "\n")
     by_module = Counter()
-    for node, cpu, _ in rows:
+    for node, cpu, *_ in rows:
         by_module[node.split("::")[0]] += cpu
     print("| CPU (s) | share | test module |\n|---:|---:|:---|")
     for module, cpu in by_module.most_common(25):
         print(f"| {cpu:.1f} | {100 * cpu / total:.1f} % | {module} |")
     print("\n| CPU (s) | wall (s) | test |\n|---:|---:|:---|")
-    for node, cpu, w in sorted(rows, key=lambda r: -r[1])[:25]:
+    for node, cpu, w, _ in sorted(rows, key=lambda r: -r[1])[:25]:
         print(f"| {cpu:.1f} | {w:.1f} | {node} |")
 
 
