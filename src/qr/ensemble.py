@@ -69,11 +69,18 @@ PARALLEL_FROM_S = 30.0  # learn.member_jobs=0 trains members serially when they 
 #                         costs a few seconds to start: torch and qr imported again)
 
 
-def jobs(setting: int, members: int, estimate_s: float = math.inf) -> int:
-    """Processes for ``members`` members: ``learn.member_jobs``; 0: min(2, cores), or 1 when the members'
-    serial time (``estimate_s``) is under :data:`PARALLEL_FROM_S`.  The members' bytes do not depend on it."""
-    n = setting or (min(2, os.cpu_count() or 1) if estimate_s >= PARALLEL_FROM_S else 1)
-    return max(1, min(n, members))
+def jobs(setting: int, members: int, estimate_s: float = math.inf, cores: int | None = None) -> int:
+    """Processes for ``members`` members: ``learn.member_jobs``; 0: the fewest processes that keep min(2, cores)
+    cores busy to the end, or 1 when the members' serial time (``estimate_s``) is under :data:`PARALLEL_FROM_S`.
+    Members are dealt to the processes in turn, so the last round holds ``members % n`` of them: fewer than
+    the cores leaves a core idle at the end (5 members in 2 processes: the fifth alone, 3 member-times; in 3
+    processes sharing 2 cores: 2.5).  The members' bytes do not depend on it."""
+    c = min(2, cores or os.cpu_count() or 1)
+    if setting:
+        return max(1, min(setting, members))
+    if estimate_s < PARALLEL_FROM_S or c == 1 or members <= 1:
+        return 1
+    return next(n for n in range(min(c, members), members + 1) if members % n == 0 or members % n >= c)
 
 
 THREADS_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")

@@ -60,3 +60,35 @@ def test_members_start_from_the_network_and_are_the_same_bytes_in_one_or_two_pro
         assert w.keys() == net.keys()
         moved = max(float(np.abs(w[n] - net[n]).max()) for n in net)
         assert 0 < moved <= LR * (1 + 1e-9)  # one Adam step from the network's weights, not a new network
+
+
+def _makespan(loads: list[int], cores: int) -> float:
+    """Equal-cost members dealt into processes (``loads``: members each), the processes sharing ``cores``
+    equally, none faster than one core: when the last one ends, in member-times."""
+    left, t = sorted(float(x) for x in loads if x), 0.0
+    while left:
+        speed = min(1.0, cores / len(left))
+        dt = left[0] / speed
+        t += dt
+        left = [x - dt * speed for x in left[1:]]
+        left = [x for x in left if x > 1e-12]
+    return t
+
+
+def test_the_default_process_count_is_the_fewest_that_keep_the_cores_busy_to_the_end():
+    """learn.member_jobs=0: of all process counts, the members (dealt in turn) end soonest with this one,
+    and with no fewer processes; 5 members on 2 cores: 3 processes (2.5 member-times, not 2's 3)."""
+    import math
+
+    from qr.ensemble import jobs
+
+    for cores in (1, 2):
+        for members in range(1, 13):
+            def end(n):
+                return _makespan([len(range(j, members, n)) for j in range(n)], cores)
+
+            n = jobs(0, members, math.inf, cores=cores)
+            best = min(end(k) for k in range(1, members + 1))
+            assert end(n) == best and all(end(k) > best for k in range(1, n)), (cores, members, n)
+    assert jobs(0, 5, math.inf, cores=2) == 3 and _makespan([2, 2, 1], 2) == 2.5 and _makespan([3, 2], 2) == 3
+    assert jobs(0, 5, 10.0, cores=2) == 1 and jobs(4, 5, 10.0, cores=2) == 4  # quick members serially; a setting wins
