@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING
 
 import pandas as pd
 
+from .estimation.nis import NisReport
 from .segments import FlightSegments, flight_segments
 
 if TYPE_CHECKING:  # (the filters imported when a segment is estimated, after the inputs are checked)
@@ -94,21 +95,21 @@ class Memo:
             self._checks[key] = check()
         return self._checks[key]
 
-    def estimates(self, flight, stored, segments, vehicle, filter_cfg: dict, report, halves: bool,
-                  made: Callable) -> list[tuple]:
-        """``(segment, states, halves, report, source)`` as ``made()`` (:func:`qr.estimation.crossfit.
+    def estimates(self, flight, stored, segments, vehicle, filter_cfg: dict, report: NisReport | None,
+                  halves: bool, made: Callable) -> list[tuple]:
+        """``(segment, states, halves, source)`` as ``made()`` (:func:`qr.estimation.crossfit.
         estimate_segments` on ``segments``) yields them, each segment estimated once (a cross-fitted one serves
         a request without halves); ``stored``: the cross-fit file they are read from where it has them (read
         again for other segments or settings: ~10 ms)."""
         k = (str(flight), str(stored), tuple(s.window for s in segments),
-             json.dumps([filter_cfg, report, float(vehicle.hover_speed)], sort_keys=True, default=str))
+             json.dumps([filter_cfg, report and report.to_json(), float(vehicle.hover_speed)], sort_keys=True,
+                        default=str))
         got = self._made.get((*k, True)) or self._made.get((*k, halves))
         if got is None:
-            got = self._made[(*k, halves)] = [(seg.window, st, pair, rep, source)
-                                              for seg, st, pair, rep, source in made()]
+            got = self._made[(*k, halves)] = [(seg.window, st, pair, source) for seg, st, pair, source in made()]
         seg = {s.window: s for s in segments}
-        return [(seg[w], st.copy(), tuple(t.copy() for t in pair) if halves else None, rep, source)
-                for w, st, pair, rep, source in got]
+        return [(seg[w], st.copy(), tuple(t.copy() for t in pair) if halves else None, source)
+                for w, st, pair, source in got]
 
 
 def _physical(vehicle) -> str:
@@ -117,9 +118,9 @@ def _physical(vehicle) -> str:
                       sort_keys=True, default=str)
 
 
-def read_reports(nis_files: Sequence) -> list[dict]:
+def read_reports(nis_files: Sequence) -> list[NisReport]:
     """The filter stage's reports (``.nis.json``: its tuning record), one per flight."""
-    return [json.loads(Path(p).read_text()) for p in nis_files]
+    return [NisReport.from_json(json.loads(Path(p).read_text())) for p in nis_files]
 
 
 def read_flights(paths: Sequence, memo: Memo | None = None) -> list[pd.DataFrame]:
@@ -179,11 +180,11 @@ def _estimates(segments: list, named: list[str], vehicle, filter_cfg: dict, repo
     out = []
     for i, used in enumerate(segments):
         report = reports[i] if reports else None
-        file = Estimates(stored[i], filter_cfg, report, vehicle) if stored and stored[i] and report else None
+        file = Estimates(stored[i], filter_cfg, report.tuning, vehicle) if stored and stored[i] and report else None
         made = lambda: estimate_segments(used, vehicle, filter_cfg, report, halves, file)  # noqa: E731
         got = memo.estimates(names[i], stored[i] if file else None, used, vehicle, filter_cfg, report, halves,
                              made) if memo else made()
-        for seg, st, pair, _, source in got:
+        for seg, st, pair, source in got:
             say(f"estimates of {named[i]} {seg.window[0]:.2f}-{seg.window[1]:.2f} s ({len(seg.rows)} samples): "
                 f"{source}")
             for table in (st, *(pair or ())):

@@ -1,6 +1,8 @@
 """The one intake (qr.intake): the cutting with the command's minimum length, the order of its checks, and the
 rollout's estimate (no cross-fitting halves) equal to the one ``qr evaluate`` filters itself."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -27,6 +29,15 @@ def gapped():
     return v, flight[keep].reset_index(drop=True), cfg
 
 
+@pytest.fixture(scope="module")
+def report(gapped):
+    """A report with a tuning record as the filter stage writes one (noise values other than the settings')."""
+    v, flight, cfg = gapped
+    return replace(estimate(flight, v, cfg)[1], tuning={
+        "position": {"q": 40.0, "r": 1e-7}, "attitude": {"q": [900.0, 90.0, 300.0], "r": 2e-6},
+        "motor": {"q": 3000.0, "r": 0.5}})
+
+
 def test_a_segment_shorter_than_the_minimum_is_cut_said_and_not_estimated(gapped):
     v, flight, cfg = gapped
     events = []
@@ -44,22 +55,20 @@ def test_a_segment_shorter_than_the_minimum_is_cut_said_and_not_estimated(gapped
     assert taken.flights.conventions[0].flight == "g.csv" and taken.flights.conventions[0].checks
 
 
-def test_the_rollout_estimate_is_the_one_qr_evaluate_filters_itself(gapped):
+def test_the_rollout_estimate_is_the_one_qr_evaluate_filters_itself(gapped, report):
     """Given the filter stage's tuning record, the intake's full estimate (matched settings, no halves) has the
     same position, velocity, attitude and rate, bit for bit, as ``qr evaluate``'s own (the settings frozen with
     :func:`fixed_settings`): the rollout starts from those alone."""
     v, flight, cfg = gapped
-    # a tuning record as the filter stage writes one (noise values other than the settings')
-    report = {"tuning": {"position": {"q": 40.0, "r": 1e-7}, "attitude": {"q": [900.0, 90.0, 300.0], "r": 2e-6},
-                         "motor": {"q": 3000.0, "r": 0.5}}}
     taken = take(["g.csv"], [flight], v, IntakeSettings(1.5, cfg, halves=False), reports=[report])
     for e in taken.estimates:
         assert e.halves is None
-        own = estimate(e.rows, v, fixed_settings(cfg, report))[0]
+        own = estimate(e.rows, v, fixed_settings(cfg, report.tuning))[0]
         assert np.array_equal(e.states[MOTION].to_numpy(), own[MOTION].to_numpy())
 
 
-def test_a_memo_reads_checks_and_estimates_each_flight_once_with_the_same_numbers(gapped, monkeypatch, tmp_path):
+def test_a_memo_reads_checks_and_estimates_each_flight_once_with_the_same_numbers(gapped, report, monkeypatch,
+                                                                                   tmp_path):
     """Commands run one after another on the same flights (a workflow fold) share a :class:`Memo`: the file is
     read once, the flight checked once per vehicle of other physical properties (a vehicle with effects added
     shares the nominal one's checks), each segment estimated once (the diagnosis's cross-fitted estimate serves
@@ -73,8 +82,6 @@ def test_a_memo_reads_checks_and_estimates_each_flight_once_with_the_same_number
     v, flight, cfg = gapped
     path = tmp_path / "g.parquet"
     flight.to_parquet(path)
-    report = {"tuning": {"position": {"q": 40.0, "r": 1e-7}, "attitude": {"q": [900.0, 90.0, 300.0], "r": 2e-6},
-                         "motor": {"q": 3000.0, "r": 0.5}}}
     calls = {"read": 0, "check": 0, "filter": 0}
 
     def counted(name, fn):

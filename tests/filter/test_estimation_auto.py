@@ -37,12 +37,12 @@ def test_auto_recovers_process_and_measurement_noise_of_the_model(model):
     _, report = estimate(model, None, auto_cfg())
     print()
     for f, true in TRUE.items():
-        got = report["noise"][f]
+        got = report.noise[f]
         print(f"{f}: q {got['q']:.3g} (true {true['q']:.3g}), r {got['r']:.3g} (true {true['r']:.3g}), "
               f"bandwidth {got['corner_hz']:.2f} Hz")
         assert 0.5 < got["q"] / true["q"] < 2, f
         assert 0.5 < got["r"] / true["r"] < 2, f
-        assert not report["tuning"][f]["at_bound"]
+        assert not report.tuning[f]["at_bound"]
 
 
 @pytest.mark.parametrize("vehicle", ["hummingbird", "crazyflie"])
@@ -55,9 +55,9 @@ def test_auto_recovers_the_measurement_noise_of_qr_synth_flights(vehicle, reques
               "motor": (noise.rotor_std * v.hover_speed) ** 2}
     print()
     for f, r in true_r.items():
-        got = report["noise"][f]["r"]
-        print(f"{vehicle} {f}: r {got:.3g} (true {r:.3g}), q {report['noise'][f]['q']:.3g}, "
-              f"bandwidth {report['noise'][f]['corner_hz']:.2f} Hz")
+        got = report.noise[f]["r"]
+        print(f"{vehicle} {f}: r {got:.3g} (true {r:.3g}), q {report.noise[f]['q']:.3g}, "
+              f"bandwidth {report.noise[f]['corner_hz']:.2f} Hz")
         assert 0.5 < got / r < 2, f
 
 
@@ -66,12 +66,12 @@ def test_nis_flags_a_filter_with_the_wrong_noise(model, scale, verdict):
     """With the true q and r the NIS means sit in their 95 % band; with r off by 10x every filter is flagged."""
     cfg = {"discretisation": "exact", **{f: {"q": v["q"], "r": v["r"] * scale} for f, v in TRUE.items()}}
     _, report = estimate(model, None, cfg)
-    stats = [report["nis"]["position"], report["nis"]["attitude"], report["nis"]["motor"]["all"]]
+    stats = [report.nis["position"], report.nis["attitude"], report.nis["motor"]["all"]]
     if verdict is None:
-        assert report["inconsistent"] == [] and all(s["consistent"] for s in stats)
+        assert report.inconsistent == () and all(s["consistent"] for s in stats)
         assert all(s["band"][0] < s["mean"] < s["band"][1] for s in stats)
     else:
-        assert set(report["inconsistent"]) == {"position", "attitude", "motor.u1", "motor.u2", "motor.u3",
+        assert set(report.inconsistent) == {"position", "attitude", "motor.u1", "motor.u2", "motor.u3",
                                                "motor.u4"}
         assert all(s["verdict"].startswith(verdict) for s in stats)
 
@@ -80,8 +80,8 @@ def test_thesis_tuning_is_flagged_on_a_noisier_mocap(hummingbird):
     """The thesis's R = 0.0002² m² on a 0.5 mm-noise mocap: the position filter is over-confident."""
     flight, _ = synthesize(hummingbird, [], SynthConfig(duration=20.0, rate=100.0, seed=2))
     _, report = estimate(flight, hummingbird, {})
-    assert "position" in report["inconsistent"]
-    assert report["nis"]["position"]["mean"] > 3 * report["nis"]["position"]["band"][1]
+    assert "position" in report.inconsistent
+    assert report.nis["position"]["mean"] > 3 * report.nis["position"]["band"][1]
 
 
 def test_nis_band_is_the_chi_square_band_of_the_mean():

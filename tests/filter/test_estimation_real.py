@@ -40,9 +40,9 @@ def test_restart_guard_keeps_the_eskf_from_running_away(real):
     runaway, rep_none = estimate(fl, v, {"attitude": {"reset_deg": None}})
     guarded, rep = estimate(fl, v, {})
     print(f"\neckart27 ω vs gyro RMS: no guard {gyro_rms(runaway, fl):.3g} rad/s, "
-          f"guard {gyro_rms(guarded, fl):.3g} rad/s (restarts at t = {rep['attitude_restarts']['t']})")
-    assert gyro_rms(runaway, fl) > 1000 and rep_none["attitude_restarts"]["count"] == 0
-    assert gyro_rms(guarded, fl) < 3 and 1 <= rep["attitude_restarts"]["count"] <= 3
+          f"guard {gyro_rms(guarded, fl):.3g} rad/s (restarts at t = {rep.attitude_restarts['t']})")
+    assert gyro_rms(runaway, fl) > 1000 and rep_none.attitude_restarts["count"] == 0
+    assert gyro_rms(guarded, fl) < 3 and 1 <= rep.attitude_restarts["count"] <= 3
 
 
 def test_tuned_smoother_follows_the_gyro_better_than_the_thesis_filter(real):

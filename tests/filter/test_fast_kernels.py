@@ -65,8 +65,9 @@ def test_the_three_filters_give_the_same_digits_on_one_thread_and_on_two(flight)
     try:
         for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
             numba.set_num_threads(threads)
-            st, (even, odd), report = prepare_flight(flight, None, cfg)
-            runs.append((st, even, odd, report["tuning"]))
+            tuned = tuned_noise(flight, None, cfg)
+            st, (even, odd) = prepare_flight(flight, None, cfg, tuned)
+            runs.append((st, even, odd, tuned))
     finally:
         numba.set_num_threads(before)
     for a, b in zip(runs[0][:3], runs[1][:3]):
@@ -77,7 +78,7 @@ def test_the_three_filters_give_the_same_digits_on_one_thread_and_on_two(flight)
 def test_tuning_alone_gives_the_values_the_tuned_filter_reports(flight):
     cfg = to_dict(compose(["filter=auto"]))["filter"]
     _, report = estimate(flight, None, cfg)
-    assert tuned_noise(flight, None, cfg) == report["tuning"]
+    assert tuned_noise(flight, None, cfg) == report.tuning
     assert tuned_noise(flight, None, to_dict(compose([]))["filter"]) is None  # the thesis filters do not tune
 
 

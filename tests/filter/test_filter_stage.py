@@ -119,7 +119,7 @@ def test_thesis_style_figures_nis_figure_and_summary(flight_csv, tmp_path):
     assert (tmp_path / "nis.png").stat().st_size > 10_000
     summarize({"s/f1": tmp_path / "f1.nis.json"}, tmp_path / "summary.csv")
     table = pd.read_csv(tmp_path / "summary.csv")
-    assert list(table["flight"]) == ["s/f1"] and table.loc[0, "position_ok"] == report["nis"]["position"]["consistent"]
+    assert list(table["flight"]) == ["s/f1"] and table.loc[0, "position_ok"] == report.nis["position"]["consistent"]
     assert (tmp_path / "summary.md").exists()
 
 
@@ -149,7 +149,7 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
     table = pd.read_parquet(xfit)
     assert sorted(table["segment_start"].unique()) == [3.0, pytest.approx(22.01)]
     assert sorted(table["part"].unique()) == ["even", "full", "odd"]
-    assert report["tuned_on_s"] == [pytest.approx(22.01), pytest.approx(43.0)]  # the longer airborne segment
+    assert report.tuned_on_s == (pytest.approx(22.01), pytest.approx(43.0))  # the longer airborne segment
 
     def diagnose(out, overrides=(), estimates=None, reports=(report,), **kw):
         said = []
@@ -187,3 +187,21 @@ def test_the_filter_stage_writes_the_estimates_every_diagnosis_reads(tmp_path):
           for k, est in enumerate((None, [xfit]))]
     assert sum("read from the filter stage" in m for m in said) == 2
     assert json.dumps(ev[0]["models"], sort_keys=True) == json.dumps(ev[1]["models"], sort_keys=True)
+
+
+def test_the_report_reads_back_into_an_equal_typed_result_that_writes_the_same_bytes(flight_csv, tmp_path):
+    """``.nis.json`` as the filter stage writes it (filter=auto: the tuning record too) reads back
+    (:func:`qr.intake.read_reports`) into a report equal to the one the run returned, field by field, and
+    that one's document is the file again, byte for byte."""
+    from qr.atomic import write_json
+    from qr.estimation.nis import NisReport
+    from qr.intake import read_reports
+
+    nis = tmp_path / "f1.nis.json"
+    report = run_with_overrides(flight_csv, VEHICLES / "asctec_hummingbird.yaml", tmp_path / "f1.parquet", nis,
+                                ["filter=auto"], track=False)
+    (back,) = read_reports([nis])
+    assert isinstance(back, NisReport) and back == report
+    assert back.flight == "f1" and back.tuning and len(back.tuned_on_s) == 2 and isinstance(back.inconsistent, tuple)
+    write_json(tmp_path / "again.json", back.to_json())
+    assert (tmp_path / "again.json").read_bytes() == nis.read_bytes()

@@ -41,8 +41,8 @@ def test_the_gyro_brings_rate_and_acceleration_closer_to_the_truth(flight):
     fl, truth, v = flight
     alone, rep0 = estimate(fl, v, TUNED)
     fused, rep = estimate(fl, v, {**TUNED, "attitude": {"gyro": True}})
-    assert rep0["gyro"] == {"fused": False}
-    g = rep["gyro"]
+    assert rep0.gyro == {"fused": False}
+    g = rep.gyro
     assert g["fused"] and g["samples"] == int(fl["gx"].notna().sum())
     assert np.allclose(g["bias"], BIAS, atol=3e-3), g["bias"]
     assert g["noise_sd"] == pytest.approx(SD, rel=0.15)
@@ -62,7 +62,7 @@ def test_without_gyro_columns_the_setting_changes_nothing(flight):
     plain = fl.drop(columns=["gx", "gy", "gz"])
     a, rep = estimate(plain, v, {"attitude": {"gyro": True}})
     b, _ = estimate(plain, v, {})
-    assert rep["gyro"] == {"fused": False}
+    assert rep.gyro == {"fused": False}
     assert np.array_equal(a[W].to_numpy(), b[W].to_numpy())
 
 

@@ -33,17 +33,17 @@ from ..errors import QrInputError
 from ..parallel import thread_map
 from ..segments import STORED_SPAN_S, flight_segments, min_segment_s
 from .matched import add_matched_rotor_signals
-from .pipeline import TUNED_NIS_NOTE, estimate, tuned_noise
+from .nis import NisReport
+from .pipeline import estimate, tuned_noise
 from .settings import resolve
 from .tuning import ORDER, corner_hz
 
 MEASURED = ["px", "py", "pz", "qw", "qx", "qy", "qz", "u1", "u2", "u3", "u4"]
 
 
-def fixed_settings(filter_cfg: dict, report: dict) -> dict:
-    """The filter settings the full flight ended up with (tuned values frozen)."""
+def fixed_settings(filter_cfg: dict, tuned: dict | None) -> dict:
+    """The filter settings the full flight ended up with (``tuned``: the tuned values, frozen)."""
     cfg = copy.deepcopy(dict(filter_cfg))
-    tuned = (report or {}).get("tuning") or {}
     if tuned:
         cfg.setdefault("tune", {})["enabled"] = False
         for f, v in tuned.items():
@@ -52,7 +52,7 @@ def fixed_settings(filter_cfg: dict, report: dict) -> dict:
     return cfg
 
 
-def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1.0) -> dict:
+def matched_settings(filter_cfg: dict, tuned: dict | None, bandwidth_factor: float = 1.0) -> dict:
     """Frozen settings with the rotor filters' bandwidth raised to the attitude and position filters'.
 
     The labels subtract ``T(û)`` from ``m â`` and ``Γ(û)`` from ``J α̂``; a rotor
@@ -60,7 +60,7 @@ def matched_settings(filter_cfg: dict, report: dict, bandwidth_factor: float = 1
     which ``inertia_error`` or ``thrust_gain`` would then "explain".  Rotor speeds
     are measured directly and precisely, so matching costs little noise.
     """
-    cfg = resolve(fixed_settings(filter_cfg, report))
+    cfg = resolve(fixed_settings(filter_cfg, tuned))
     q_att = float(np.exp(np.mean(np.log(np.atleast_1d(cfg["attitude"]["q"])))))
     f = min(corner_hz(cfg["position"]["q"], cfg["position"]["r"], ORDER["position"]),
             corner_hz(q_att, cfg["attitude"]["r"], ORDER["attitude"]))
@@ -95,31 +95,30 @@ def _states(flight: pd.DataFrame, vehicle, cfg: dict) -> pd.DataFrame:
 PARTS = ("full", "even", "odd")
 
 
-def key(filter_cfg: dict, report: dict, vehicle) -> str:
+def key(filter_cfg: dict, tuned: dict | None, vehicle) -> str:
     """What the estimates depend on: the matched filter settings and the rotor-speed scale."""
-    return json.dumps({"filter": matched_settings(filter_cfg, report), "hover_speed": float(vehicle.hover_speed)},
+    return json.dumps({"filter": matched_settings(filter_cfg, tuned), "hover_speed": float(vehicle.hover_speed)},
                       sort_keys=True, default=str)
 
 
-def prepare_flight(flight, vehicle, filter_cfg: dict, report: dict | None = None, halves: bool = True):
+def prepare_flight(flight, vehicle, filter_cfg: dict, tuned: dict | None, halves: bool = True):
     """Filtered states for the diagnosis and the cross-fitting halves of one canonical flight.
 
-    ``report``: the filter stage's report of this flight (its tuned noise values are
-    reused instead of tuning again).  Returns ``(states, (even, odd), report)``; without ``halves``
-    ``(states, None, report)`` (a rollout's start states need no cross-fitting).
+    ``tuned``: the tuned noise values (:func:`tuned_noise`; a tuning filter's, frozen).  Returns
+    ``(states, (even, odd))``; without ``halves`` ``(states, None)`` (a rollout's start states need no
+    cross-fitting).
     """
-    if report is None:
-        report = {"tuning": tuned_noise(flight, vehicle, filter_cfg)}
-    matched = matched_settings(filter_cfg, report)
+    matched = matched_settings(filter_cfg, tuned)
     # the full flight and its two halves: three independent filters, run side by side
     st, *pair = thread_map(lambda f: _states(f, vehicle, matched),
                            (flight, _half(flight, 0), _half(flight, 1)) if halves else (flight,))
-    return st, tuple(pair) if halves else None, report
+    return st, tuple(pair) if halves else None
 
 
-def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) -> dict | None:
-    """A tuning filter's (``filter=auto``) noise values (report keys ``tuning``, ``tuned_on_s``,
-    ``nis_note``), tuned on the flight's longest airborne, gap-free
+def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: bool = False) \
+        -> tuple[dict, tuple[float, float]] | None:
+    """A tuning filter's (``filter=auto``) noise values and the window they were tuned on (the report's
+    ``tuning`` and ``tuned_on_s``), tuned on the flight's longest airborne, gap-free
     segment: ground rows (rotors idle, vehicle resting) would bias the noise values (10 s of them
     moved a hidden kz from 0.044 to 0.095).  The diagnosis on the command line tunes on the same
     rows (:func:`prepare_flight` on its longest segment first), so the filter stage and the command
@@ -133,33 +132,35 @@ def airborne_tuning(flight: pd.DataFrame, vehicle, filter_cfg: dict, progress: b
     if not used:
         return None
     seg = max(used, key=lambda s: s.window[1] - s.window[0])  # the first of equals, as sorted() keeps
-    return {"tuning": tuned_noise(seg.rows, vehicle, filter_cfg, progress=progress),
-            "tuned_on_s": [seg.window[0], seg.window[1]], "nis_note": TUNED_NIS_NOTE}
+    return tuned_noise(seg.rows, vehicle, filter_cfg, progress=progress), seg.window
 
 
-def estimate_segments(used: list, vehicle, filter_cfg: dict, report: dict | None, halves: bool = True,
+def estimate_segments(used: list, vehicle, filter_cfg: dict, report: NisReport | None, halves: bool = True,
                       stored: "Estimates | None" = None):
-    """``(segment, states, halves, report so far, source)`` of a flight's ``used`` segments, the longest first (a
-    tuning filter is tuned there): read from ``stored`` (its cross-fit file) where it has them, else filtered."""
+    """``(segment, states, halves, source)`` of a flight's ``used`` segments, the longest first (without the
+    filter stage's ``report``, a tuning filter is tuned there once): read from ``stored`` (its cross-fit file)
+    where it has them, else filtered."""
+    tuned, known = (report.tuning, True) if report is not None else (None, False)
     for seg in sorted(used, key=lambda s: s.window[0] - s.window[1]):
         got = stored.get(seg.window[0]) if stored else None
         if got:
-            yield seg, got[0], got[1] if halves else None, report, "read from the filter stage"
+            yield seg, got[0], got[1] if halves else None, "read from the filter stage"
         else:
-            st, pair, report = prepare_flight(seg.rows, vehicle, filter_cfg, report, halves)
-            yield seg, st, pair, report, f"filter={filter_cfg.get('name', '?')}"
+            if not known:
+                tuned, known = tuned_noise(seg.rows, vehicle, filter_cfg), True
+            st, pair = prepare_flight(seg.rows, vehicle, filter_cfg, tuned, halves)
+            yield seg, st, pair, f"filter={filter_cfg.get('name', '?')}"
 
 
-def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: dict | None) \
-        -> tuple[pd.DataFrame, dict]:
+def segment_estimates(flight: pd.DataFrame, vehicle, filter_cfg: dict, report: NisReport) -> pd.DataFrame:
     """Every airborne, gap-free segment's full estimate and its even/odd halves, stacked
-    (``segment_start`` = the segment's first stamp, ``part`` in PARTS), and the report used: the
-    diagnosis's own recipe (:func:`estimate_segments`)."""
+    (``segment_start`` = the segment's first stamp, ``part`` in PARTS): the diagnosis's own recipe
+    (:func:`estimate_segments`)."""
     tables = []
-    for seg, st, pair, report, _ in estimate_segments(
+    for seg, st, pair, _ in estimate_segments(
             flight_segments(flight, vehicle, min_segment_s(0.0, STORED_SPAN_S)).used, vehicle, filter_cfg, report):
         tables += [table.assign(segment_start=seg.window[0], part=part) for part, table in zip(PARTS, (st, *pair))]
-    return pd.concat(tables, ignore_index=True), report
+    return pd.concat(tables, ignore_index=True)
 
 
 @dataclass(frozen=True)
@@ -177,18 +178,18 @@ class SegmentEstimate:
 
 class Estimates:
     """The filter stage's cross-fit file, its one reader: every segment's full estimate and its even/odd
-    halves.  Given the filter settings, the report and the vehicle of a diagnosis, the file is read only
+    halves.  Given the filter settings, the tuned values and the vehicle of a diagnosis, the file is read only
     if it was made with the same matched settings and rotor-speed scale (else :attr:`ok` is False and
     :meth:`get` None: the caller filters)."""
 
-    def __init__(self, path, filter_cfg: dict | None = None, report: dict | None = None, vehicle=None):
+    def __init__(self, path, filter_cfg: dict | None = None, tuned: dict | None = None, vehicle=None):
         import pyarrow.parquet as pq
 
         if filter_cfg is None:
             self.ok = True
         else:
             meta = pq.read_schema(path).metadata or {}
-            self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, report, vehicle)
+            self.ok = meta.get(b"qr.crossfit_key", b"").decode() == key(filter_cfg, tuned, vehicle)
         self.table = pd.read_parquet(path) if self.ok else None
 
     def get(self, start: float):
@@ -210,11 +211,11 @@ class Estimates:
         return full.sort_values("t", kind="stable").reset_index(drop=True)
 
 
-def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, report: dict, vehicle) -> None:
+def write_segment_estimates(table: pd.DataFrame, out, filter_cfg: dict, tuned: dict | None, vehicle) -> None:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     t = pa.Table.from_pandas(table, preserve_index=False)
-    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"qr.crossfit_key": key(filter_cfg, report, vehicle).encode()})
+    t = t.replace_schema_metadata({**(t.schema.metadata or {}), b"qr.crossfit_key": key(filter_cfg, tuned, vehicle).encode()})
     with atomic_path(out, suffix=".parquet") as tmp:
         pq.write_table(t, tmp)

@@ -9,7 +9,8 @@ estimates are noisier than their reported ``sd_``), below it under-confident.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -58,3 +59,38 @@ def report(inn: Innovations, names: list[str] | None, keep: np.ndarray, confiden
     out = {name: nis_stats(nis[:, i], inn.dof, confidence) for i, name in enumerate(names)}
     out["all"] = nis_stats(nis.ravel(), inn.dof, confidence)
     return out
+
+
+@dataclass(frozen=True)
+class NisReport:
+    """A filtered flight's report, the filter stage's ``<flight>.nis.json`` (:meth:`to_json`, in this order):
+    the settings, the noise values used, the tuning record and each filter's NIS (:func:`report`)."""
+
+    filter: str
+    implementation: str
+    smoother: bool
+    discretisation: str
+    samples: int
+    duration_s: float
+    dropouts: Mapping[str, int]  # filter -> samples without its measurement
+    noise: Mapping[str, Mapping]  # filter -> q, r (corner_hz with exact discretisation)
+    tuning: Mapping[str, Mapping] | None  # filter -> its likelihood-tuned values; None: not tuned
+    gyro: Mapping  # fused (and bias, noise_sd, samples if so)
+    attitude_restarts: Mapping  # count, t (the first 20)
+    nis: Mapping[str, Mapping]  # filter -> :func:`nis_stats` (motor: per rotor and "all")
+    nis_burn_in_s: float
+    inconsistent: tuple[str, ...]  # the filters (rotors as motor.uN) whose mean NIS is outside its band
+    nis_note: str | None
+    tuned_on_s: tuple[float, float] | None = None  # the airborne segment the tuned values come from
+    flight: str | None = None  # set by the filter stage (qr.estimation.run)
+    config: Mapping | None = None
+
+    def to_json(self) -> dict:
+        """The ``.nis.json`` document (a field that defaults to None only where set)."""
+        doc = {f.name: v for f in fields(self) if (v := getattr(self, f.name)) is not None or f.default is not None}
+        return doc | {k: list(doc[k]) for k in ("inconsistent", "tuned_on_s") if k in doc}
+
+    @classmethod
+    def from_json(cls, doc: Mapping) -> NisReport:
+        """The report of a ``.nis.json`` document (read by :func:`qr.intake.read_reports`)."""
+        return cls(**{**doc, **{k: tuple(doc[k]) for k in ("inconsistent", "tuned_on_s") if k in doc}})

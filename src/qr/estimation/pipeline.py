@@ -71,7 +71,7 @@ def _tune(s: dict, t, meas: dict, keep, speed_scale: float, progress: bool) -> d
 
 def tuned_noise(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progress: bool = False,
                 source: str | None = None) -> dict | None:
-    """The ``tuning`` entry of :func:`estimate`'s report (None unless ``tune.enabled``), without
+    """The ``tuning`` of :func:`estimate`'s report (None unless ``tune.enabled``), without
     filtering the flight afterwards: the callers that freeze the tuned values filter other rows."""
     s = resolve(cfg)
     if not s["tune"]["enabled"]:
@@ -83,7 +83,7 @@ def tuned_noise(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, pro
 
 
 def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progress: bool = False,
-             source: str | None = None) -> tuple[pd.DataFrame, dict]:
+             source: str | None = None) -> tuple[pd.DataFrame, nis.NisReport]:
     """Filter (or smooth) a canonical flight into the state table.
 
     ``cfg`` is the ``filter`` config group as a dict (defaults: the thesis
@@ -91,8 +91,8 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     scale of the rotor filters' initial covariance.  Returns the state table
     (``qr.states.COLUMNS`` plus ``sd_*`` posterior standard deviations and
     ``sd_thx..sd_thz``, the body-frame attitude error; ``nis_p``, ``nis_q``,
-    ``nis_u1..4``, the per-sample NIS, NaN without an update) and a report dict with
-    the noise values used (tuned ones for ``filter=auto``) and NIS statistics.
+    ``nis_u1..4``, the per-sample NIS, NaN without an update) and its report (:class:`.nis.NisReport`:
+    the noise values used, tuned ones for ``filter=auto``, and NIS statistics).
     """
     s = resolve(cfg)
     t, P, Qm, U = _inputs(flight, source or flight.attrs.get("source"))
@@ -112,18 +112,16 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
                   "motor": nis.report(inn_m, U_COLS, keep, conf)}
     flagged = [f for f in ("position", "attitude") if nis_report[f]["consistent"] is False]
     flagged += [f"motor.{u}" for u in U_COLS if nis_report["motor"][u]["consistent"] is False]
-    report = {
-        "filter": s["name"], "implementation": s["implementation"], "smoother": bool(s["smoother"]),
-        "discretisation": s["discretisation"], "samples": int(len(t)), "duration_s": float(t[-1] - t[0]),
-        "dropouts": {"position": int((~np.all(np.isfinite(P), axis=1)).sum()),
-                     "attitude": int((~np.all(np.isfinite(Qm), axis=1)).sum()),
-                     "motor": int((~np.isfinite(U)).sum())},
-        "noise": _noise(s), "tuning": tuned or None,
-        "gyro": gyro_report or {"fused": False},
-        "attitude_restarts": {"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
-        "nis": nis_report, "nis_burn_in_s": float(t[keep][0] - t[0]), "inconsistent": flagged,
-        "nis_note": TUNED_NIS_NOTE if tuned else None,
-    }
+    report = nis.NisReport(
+        filter=s["name"], implementation=s["implementation"], smoother=bool(s["smoother"]),
+        discretisation=s["discretisation"], samples=int(len(t)), duration_s=float(t[-1] - t[0]),
+        dropouts={"position": int((~np.all(np.isfinite(P), axis=1)).sum()),
+                  "attitude": int((~np.all(np.isfinite(Qm), axis=1)).sum()),
+                  "motor": int((~np.isfinite(U)).sum())},
+        noise=_noise(s), tuning=tuned or None, gyro=gyro_report or {"fused": False},
+        attitude_restarts={"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
+        nis=nis_report, nis_burn_in_s=float(t[keep][0] - t[0]), inconsistent=tuple(flagged),
+        nis_note=TUNED_NIS_NOTE if tuned else None)
     return table, report
 
 

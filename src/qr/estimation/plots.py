@@ -17,6 +17,7 @@ from scipy.stats import chi2
 
 from ..frames import quat_multiply, rotation
 from ..report.figures import save, subplots
+from .nis import NisReport
 
 AXES = "xyz"
 FIGURES = {  # file stem -> (title, raw columns, filtered columns, unit)
@@ -92,13 +93,13 @@ def filtered_vs_raw(flight: pd.DataFrame, states: pd.DataFrame, outdir: str | Pa
     return paths
 
 
-def nis_figure(states: pd.DataFrame, report: dict, path: str | Path, title: str = "") -> None:
+def nis_figure(states: pd.DataFrame, report: NisReport, path: str | Path, title: str = "") -> None:
     """Per-sample NIS of the three filters against the χ² band, with the mean's verdict."""
     t = states["t"].to_numpy() - states["t"].iloc[0]
     conf = 0.95
-    panels = [("position", ["nis_p"], 3, report["nis"]["position"]),
-              ("attitude", ["nis_q"], 3, report["nis"]["attitude"]),
-              ("rotors", [f"nis_u{i}" for i in range(1, 5)], 1, report["nis"]["motor"]["all"])]
+    panels = [("position", ["nis_p"], 3, report.nis["position"]),
+              ("attitude", ["nis_q"], 3, report.nis["attitude"]),
+              ("rotors", [f"nis_u{i}" for i in range(1, 5)], 1, report.nis["motor"]["all"])]
     fig, axes = subplots(3, 1, figsize=(8, 6.5), sharex=True)
     for ax, (name, cols, dof, stats) in zip(axes, panels):
         for c in cols:
@@ -115,5 +116,5 @@ def nis_figure(states: pd.DataFrame, report: dict, path: str | Path, title: str 
         if len(cols) > 1:
             ax.legend(fontsize=7, ncol=4, loc="upper right")
     axes[-1].set_xlabel("t (s)")
-    fig.suptitle(f"Innovation consistency{' — ' + title if title else ''} (filter={report['filter']})", fontsize=9)
+    fig.suptitle(f"Innovation consistency{' — ' + title if title else ''} (filter={report.filter})", fontsize=9)
     save(fig, path)

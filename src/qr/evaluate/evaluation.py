@@ -22,6 +22,7 @@ from ..bands import Bands, BandSet
 from ..config import Group, to_dict
 from ..envelope import Envelope, Outside, check
 from ..errors import QrInputError
+from ..estimation.nis import NisReport
 from ..estimation.settings import resolve as resolve_filter
 from ..holdout import Assignment, assign
 from ..intake import shown
@@ -67,7 +68,7 @@ class Given:
 
     path: str
     measured: pd.DataFrame | None = None
-    report: dict | None = None
+    report: NisReport | None = None
     estimates: str | None = None
 
 

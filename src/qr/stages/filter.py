@@ -27,8 +27,9 @@ def nis_path(out: str | Path) -> Path:
 
 
 def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: str | None = None,
-               progress: bool = False, track: bool = True, crossfit_out=None) -> dict:
-    """Filter one flight file, write the state table and the NIS report atomically, track it in MLflow.
+               progress: bool = False, track: bool = True, crossfit_out=None):
+    """Filter one flight file, write the state table and the NIS report atomically, track it in MLflow; returns
+    the report (:class:`qr.estimation.nis.NisReport`).
 
     ``track=False`` leaves the MLflow run to :func:`qr.stages.filter_sets.track_runs` (the workflow logs all
     flights' runs from one process: importing MLflow per job would cost more than filtering).
@@ -49,8 +50,8 @@ def run_filter(flight_path, vehicle_file, out, nis_out, filter_cfg: dict, name: 
     with atomic_path(out, suffix=".parquet") as tmp:
         done.states.to_parquet(tmp, index=False)
     if crossfit_out is not None:
-        write_segment_estimates(done.crossfit, crossfit_out, cfg, done.report, vehicle)
-    write_json(nis_out, done.report)
+        write_segment_estimates(done.crossfit, crossfit_out, cfg, done.report.tuning, vehicle)
+    write_json(nis_out, done.report.to_json())
     if track:
         track_filter(name, flight_path, vehicle_file, done.report, done.states, nis_out, done.seconds)
     return done.report
@@ -62,10 +63,10 @@ def track_filter(name, flight_path, vehicle_file, report, states, nis_out, secon
     from ..estimation.run import metrics
 
     inputs = [Path(flight_path)] + ([Path(vehicle_file)] if vehicle_file else [])
-    with tracking.run("filter", name, config={"filter": report["config"], "vehicle": str(vehicle_file)},
+    with tracking.run("filter", name, config={"filter": report.config, "vehicle": str(vehicle_file)},
                       inputs=inputs) as run:
         run.metrics(metrics(report, seconds))
-        run.tags({"qr.filter": report["filter"], "qr.nis_inconsistent": ",".join(report["inconsistent"]) or "none"})
+        run.tags({"qr.filter": report.filter, "qr.nis_inconsistent": ",".join(report.inconsistent) or "none"})
         run.artifact(nis_out)
         if run.id != "none":  # tracking on: draw the NIS figure for the run
             with tempfile.TemporaryDirectory() as d:
@@ -82,8 +83,8 @@ def _main(cfg) -> None:
     out = Path(f.get("out") or Path(c["results"]) / "filter" / f"{Path(f['flight']).stem}.parquet")
     report = run_filter(f["flight"], find_vehicle(f.get("vehicle") or c["vehicle"]), out, nis_path(out), f,
                         progress=True)
-    flagged = ", ".join(report["inconsistent"]) or "none"
-    print(f"wrote {out} and {nis_path(out)} (filter={report['filter']}; NIS-inconsistent: {flagged})")
+    flagged = ", ".join(report.inconsistent) or "none"
+    print(f"wrote {out} and {nis_path(out)} (filter={report.filter}; NIS-inconsistent: {flagged})")
 
 
 def main() -> None:

@@ -25,7 +25,7 @@ def run_batch(flights, vehicle_file, outs, nis_outs, crossfit_outs, names, overr
         flight, out, nis_out, crossfit_out, name = job
         report = run_filter(flight, vehicle_file, out, nis_out, cfg["filter"], name, track=False,
                             crossfit_out=crossfit_out)
-        print(f"{name}: filter={report['filter']}, NIS-inconsistent: {', '.join(report['inconsistent']) or 'none'}",
+        print(f"{name}: filter={report.filter}, NIS-inconsistent: {', '.join(report.inconsistent) or 'none'}",
               file=sys.stderr, flush=True)
 
 

@@ -28,6 +28,7 @@ def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = N
     (:func:`qr.holdout.held_out`) and never opened; the others train, their validation flights drawn
     by the same split (``reports`` / ``estimates``: the filter stage's files, or reports already read, of
     every flight in the same order)."""
+    from ..estimation.nis import NisReport
     from ..holdout import held_out
     from ..intake import read_reports
 
@@ -39,7 +40,7 @@ def train_held_out(flights, vehicle, out, overrides=(), reports: list | None = N
         split = EvaluateConfig.from_dict(to_dict(compose(overrides).evaluate)).split
     train = list(held_out(flights, split).train)
     pick = lambda files: [files[flights.index(f)] for f in train] if files else None  # noqa: E731
-    reports = [r if isinstance(r, dict) else read_reports([r])[0] for r in pick(reports) or []]
+    reports = [r if isinstance(r, NisReport) else read_reports([r])[0] for r in pick(reports) or []]
     return run_residual(train, vehicle, out, overrides, reports=reports or None, estimates=pick(estimates),
                         split=split, **kwargs)
 
