@@ -66,14 +66,14 @@ def test_nis_flags_a_filter_with_the_wrong_noise(model, scale, verdict):
     """With the true q and r the NIS means sit in their 95 % band; with r off by 10x every filter is flagged."""
     cfg = {"discretisation": "exact", **{f: {"q": v["q"], "r": v["r"] * scale} for f, v in TRUE.items()}}
     _, report = estimate(model, None, cfg)
-    stats = [report.nis["position"], report.nis["attitude"], report.nis["motor"]["all"]]
+    stats = [report.nis.position, report.nis.attitude, report.nis.motor["all"]]
     if verdict is None:
-        assert report.inconsistent == () and all(s["consistent"] for s in stats)
-        assert all(s["band"][0] < s["mean"] < s["band"][1] for s in stats)
+        assert report.inconsistent == () and all(s.consistent for s in stats)
+        assert all(s.band[0] < s.mean < s.band[1] for s in stats)
     else:
         assert set(report.inconsistent) == {"position", "attitude", "motor.u1", "motor.u2", "motor.u3",
                                                "motor.u4"}
-        assert all(s["verdict"].startswith(verdict) for s in stats)
+        assert all(s.verdict.startswith(verdict) for s in stats)
 
 
 def test_thesis_tuning_is_flagged_on_a_noisier_mocap(hummingbird):
@@ -81,15 +81,15 @@ def test_thesis_tuning_is_flagged_on_a_noisier_mocap(hummingbird):
     flight, _ = synthesize(hummingbird, [], SynthConfig(duration=20.0, rate=100.0, seed=2))
     _, report = estimate(flight, hummingbird, {})
     assert "position" in report.inconsistent
-    assert report.nis["position"]["mean"] > 3 * report.nis["position"]["band"][1]
+    assert report.nis.position.mean > 3 * report.nis.position.band[1]
 
 
 def test_nis_band_is_the_chi_square_band_of_the_mean():
     rng = np.random.default_rng(0)
     ok = nis.nis_stats(rng.chisquare(3, 20000), 3)
-    assert ok["consistent"] and ok["band"][0] < 3 < ok["band"][1]
-    assert abs(ok["outside_sample_band"] - 0.05) < 0.01
-    assert not nis.nis_stats(1.05 * rng.chisquare(3, 20000), 3)["consistent"]  # 5 % too large, n = 20000
+    assert ok.consistent and ok.band[0] < 3 < ok.band[1]
+    assert abs(ok.outside_sample_band - 0.05) < 0.01
+    assert not nis.nis_stats(1.05 * rng.chisquare(3, 20000), 3).consistent  # 5 % too large, n = 20000
 
 
 def test_auto_needs_the_exact_discretisation():

@@ -58,7 +58,7 @@ def test_fast_path_equals_reference(flight, name):
     print(f"\n{name}: largest relative difference fast vs reference: "
           + ", ".join(f"{c} {worst[c]:.1e}" for c in sorted(worst, key=worst.get)[-4:]))
     assert max(worst.values()) < TOL, {c: w for c, w in worst.items() if w >= TOL}
-    flat_f, flat_r = flatten(rep_f.nis), flatten(rep_r.nis)
+    flat_f, flat_r = flatten(rep_f.nis.to_json()), flatten(rep_r.nis.to_json())
     assert flat_f.keys() == flat_r.keys()
     for k, val in flat_r.items():
         assert flat_f[k] == (pytest.approx(val, rel=TOL) if isinstance(val, float) else val), k

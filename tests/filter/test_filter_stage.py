@@ -119,7 +119,7 @@ def test_thesis_style_figures_nis_figure_and_summary(flight_csv, tmp_path):
     assert (tmp_path / "nis.png").stat().st_size > 10_000
     summarize({"s/f1": tmp_path / "f1.nis.json"}, tmp_path / "summary.csv")
     table = pd.read_csv(tmp_path / "summary.csv")
-    assert list(table["flight"]) == ["s/f1"] and table.loc[0, "position_ok"] == report.nis["position"]["consistent"]
+    assert list(table["flight"]) == ["s/f1"] and table.loc[0, "position_ok"] == report.nis.position.consistent
     assert (tmp_path / "summary.md").exists()
 
 

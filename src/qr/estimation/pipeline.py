@@ -108,10 +108,7 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
     Vp, Va, Vm = (np.maximum(V, 0.0) for V in (Vp, Va, Vm))  # rounding can leave -0-ish variances
     table = pd.concat([table, _uncertainty_table(Vp, Va, sd_w, sd_al, Vm, inn_p, inn_a, inn_m)], axis=1)
     conf = float(s["nis"]["confidence"])
-    nis_report = {"position": nis.report(inn_p, None, keep, conf), "attitude": nis.report(inn_a, None, keep, conf),
-                  "motor": nis.report(inn_m, U_COLS, keep, conf)}
-    flagged = [f for f in ("position", "attitude") if nis_report[f]["consistent"] is False]
-    flagged += [f"motor.{u}" for u in U_COLS if nis_report["motor"][u]["consistent"] is False]
+    nis_report = nis.FilterNis.of(inn_p, inn_a, inn_m, U_COLS, keep, conf)
     report = nis.NisReport(
         filter=s["name"], implementation=s["implementation"], smoother=bool(s["smoother"]),
         discretisation=s["discretisation"], samples=int(len(t)), duration_s=float(t[-1] - t[0]),
@@ -120,7 +117,7 @@ def estimate(flight: pd.DataFrame, vehicle=None, cfg: dict | None = None, progre
                   "motor": int((~np.isfinite(U)).sum())},
         noise=_noise(s), tuning=tuned or None, gyro=gyro_report or {"fused": False},
         attitude_restarts={"count": int(resets.sum()), "t": [float(x) for x in t[resets][:20]]},
-        nis=nis_report, nis_burn_in_s=float(t[keep][0] - t[0]), inconsistent=tuple(flagged),
+        nis=nis_report, nis_burn_in_s=float(t[keep][0] - t[0]), inconsistent=nis_report.inconsistent(),
         nis_note=TUNED_NIS_NOTE if tuned else None)
     return table, report
 

@@ -97,9 +97,8 @@ def nis_figure(states: pd.DataFrame, report: NisReport, path: str | Path, title:
     """Per-sample NIS of the three filters against the χ² band, with the mean's verdict."""
     t = states["t"].to_numpy() - states["t"].iloc[0]
     conf = 0.95
-    panels = [("position", ["nis_p"], 3, report.nis["position"]),
-              ("attitude", ["nis_q"], 3, report.nis["attitude"]),
-              ("rotors", [f"nis_u{i}" for i in range(1, 5)], 1, report.nis["motor"]["all"])]
+    panels = [("position", ["nis_p"], 3, report.nis.position), ("attitude", ["nis_q"], 3, report.nis.attitude),
+              ("rotors", [f"nis_u{i}" for i in range(1, 5)], 1, report.nis.motor["all"])]
     fig, axes = subplots(3, 1, figsize=(8, 6.5), sharex=True)
     for ax, (name, cols, dof, stats) in zip(axes, panels):
         for c in cols:
@@ -107,10 +106,9 @@ def nis_figure(states: pd.DataFrame, report: NisReport, path: str | Path, title:
         lo, hi = chi2.ppf([(1 - conf) / 2, (1 + conf) / 2], dof)
         ax.axhline(dof, color="k", lw=0.8)
         ax.axhspan(lo, hi, color="tab:green", alpha=0.12, lw=0)
-        mean = stats.get("mean")
-        verdict = stats.get("verdict", "")
+        mean = stats.mean
         ax.set_title(f"{name}: mean NIS {mean:.3g} (χ²({dof}) expects {dof}; band of the mean "
-                     f"{stats['band'][0]:.3g}–{stats['band'][1]:.3g}) — {verdict}" if mean is not None else name,
+                     f"{stats.band[0]:.3g}–{stats.band[1]:.3g}) — {stats.verdict}" if mean is not None else name,
                      fontsize=8)
         ax.set_ylabel("NIS (dimensionless)")
         if len(cols) > 1:

@@ -46,12 +46,11 @@ def metrics(report: NisReport, seconds: float | None) -> dict:
     m = {"inconsistent_filters": len(report.inconsistent)}
     if seconds is not None:
         m["seconds"] = seconds
-    for f, stats in report.nis.items():
-        for name, st in ({"": stats} if "mean" in stats else {f".{k}": v for k, v in stats.items()}).items():
-            if st.get("mean") is not None:
-                m[f"nis.{f}{name}.mean"] = st["mean"]
-                m[f"nis.{f}{name}.consistent"] = float(st["consistent"])
-                m[f"nis.{f}{name}.outside_sample_band"] = st["outside_sample_band"]
+    for name, st in report.nis.channels():
+        if st.mean is not None:
+            m[f"nis.{name}.mean"] = st.mean
+            m[f"nis.{name}.consistent"] = float(st.consistent)
+            m[f"nis.{name}.outside_sample_band"] = st.outside_sample_band
     for f, noise in report.noise.items():
         for k, v in noise.items():
             m[f"noise.{f}.{k}"] = v if not isinstance(v, list) else max(v)
@@ -63,12 +62,11 @@ def nis_table(reports: dict[str, NisReport]) -> pd.DataFrame:
     rows = []
     for name, rep in reports.items():
         row = {"flight": name, "filter": rep.filter, "samples": rep.samples}
-        for f, st in (("position", rep.nis["position"]), ("attitude", rep.nis["attitude"]),
-                      ("rotors", rep.nis["motor"]["all"])):
-            row[f"{f}_nis"] = st["mean"]
-            row[f"{f}_band"] = "–".join(f"{b:.3g}" for b in st["band"]) if st["band"] else ""
-            row[f"{f}_ok"] = st["consistent"]
-            row[f"{f}_outside"] = st["outside_sample_band"]  # expected: 1 - confidence
+        for f, st in (("position", rep.nis.position), ("attitude", rep.nis.attitude), ("rotors", rep.nis.motor["all"])):
+            row[f"{f}_nis"] = st.mean
+            row[f"{f}_band"] = "–".join(f"{b:.3g}" for b in st.band) if st.band else ""
+            row[f"{f}_ok"] = st.consistent
+            row[f"{f}_outside"] = st.outside_sample_band  # expected: 1 - confidence
         row["flagged"] = ", ".join(rep.inconsistent) or "-"
         rows.append(row)
     return pd.DataFrame(rows)
