@@ -294,8 +294,6 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
     import torch
 
     from .parallel import torch_one_thread
-    from .rollout_torch import DTYPE
-    from .sim.plant import true_params
 
     threads = torch.get_num_threads()
     deterministic = torch.are_deterministic_algorithms_enabled()
@@ -303,24 +301,10 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
     torch.use_deterministic_algorithms(True)
     t_start = time.perf_counter()
     try:
-        H = cfg.horizon
-        P0 = true_params(vehicle, vehicle.effects, residual=False)
-        P = torch.as_tensor(P0, dtype=DTYPE)
-        # the validation loss on every stride-th start too (the final table: every start, compiled)
-        train_b, val_b = gather(pieces, "train", H, P0), gather(pieces, "val", H, P0, cfg.stride)
-        ref_np = _reference(pieces, vehicle, H)
-        ref = torch.as_tensor(ref_np, dtype=DTYPE)
-        wh = torch.as_tensor(cfg.horizon_weights(), dtype=DTYPE)
-        ws = torch.as_tensor(cfg.signal_weights.vector(), dtype=DTYPE)
+        train_b, val_b, ref_np, terms = _windows(cfg, vehicle, pieces)
         net, how = initial_net(cfg, vehicle, pieces, seed)
-        log(f"{len(train_b)} training and {len(val_b)} validation windows of {H} steps; network {how}")
-
-        def evaluate(batch):
-            with torch.no_grad():
-                parts = [errors(batch.take(slice(a, a + 2048)), P, net) for a in range(0, len(batch), 2048)]
-                return float(loss_of(torch.cat(parts), wh, ws, ref))
-
-        initial = {"train_loss": evaluate(train_b), "val_loss": evaluate(val_b)}
+        log(f"{len(train_b)} training and {len(val_b)} validation windows of {cfg.horizon} steps; network {how}")
+        initial = {"train_loss": _loss_on(train_b, net, terms), "val_loss": _loss_on(val_b, net, terms)}
         best, best_state, best_epoch, stale, skipped = initial["val_loss"], copy.deepcopy(net.state_dict()), 0, 0, 0
         if not keep_start:
             best = math.inf
@@ -330,34 +314,13 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
         clock = time.perf_counter
         for epoch in range(1, cfg.epochs + 1):
             t0 = clock()
-            spent = dict.fromkeys(("gather_s", "forward_s", "backward_s", "validation_s"), 0.0)  # where the time goes
             order = torch.randperm(len(train_b), generator=gen)
-            total, n = 0.0, 0
-            for a in range(0, len(order), cfg.batch):
-                t1 = clock()
-                idx = order[a:a + cfg.batch]
-                b = train_b.take(idx)
-                t2 = clock()
-                loss = loss_of(errors(b, P, net), wh, ws, ref)
-                t3 = clock()
-                opt.zero_grad()
-                loss.backward()
-                norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.clip)
-                finite = math.isfinite(loss.item()) and math.isfinite(norm.item())
-                if finite:
-                    opt.step()
-                    total += loss.item() * len(idx)
-                    n += len(idx)
-                else:
-                    skipped += 1
-                t4 = clock()
-                spent["gather_s"] += t2 - t1
-                spent["forward_s"] += t3 - t2
-                spent["backward_s"] += t4 - t3  # with the clip and Adam's step
+            train_loss, bad, spent = _epoch(net, opt, train_b, order, cfg, terms, clock)
+            skipped += bad
             t5 = clock()
-            val = evaluate(val_b)
+            val = _loss_on(val_b, net, terms)
             spent["validation_s"] = clock() - t5
-            history.append({"epoch": epoch, "train_loss": total / max(n, 1), "val_loss": val,
+            history.append({"epoch": epoch, "train_loss": train_loss, "val_loss": val,
                             "seconds": clock() - t0, **spent})
             threads_seen = max(threads_seen, torch.get_num_threads())
             if on_epoch:
@@ -377,6 +340,65 @@ def train(cfg: ResidualConfig, vehicle, pieces: list[Piece], seed: int, log=lamb
     finally:
         torch.set_num_threads(threads)
         torch.use_deterministic_algorithms(deterministic)
+
+
+def _windows(cfg: ResidualConfig, vehicle, pieces: list[Piece]):
+    """The training and validation windows (validation on every stride-th start: the final table takes every
+    start, compiled), the reference MAE per quantity and the loss's terms (the plant's parameters, the horizon
+    and signal weights, the reference as a tensor)."""
+    import torch
+
+    from .rollout_torch import DTYPE
+    from .sim.plant import true_params
+
+    H = cfg.horizon
+    P0 = true_params(vehicle, vehicle.effects, residual=False)
+    train_b, val_b = gather(pieces, "train", H, P0), gather(pieces, "val", H, P0, cfg.stride)
+    ref_np = _reference(pieces, vehicle, H)
+    terms = (torch.as_tensor(P0, dtype=DTYPE), torch.as_tensor(cfg.horizon_weights(), dtype=DTYPE),
+             torch.as_tensor(cfg.signal_weights.vector(), dtype=DTYPE), torch.as_tensor(ref_np, dtype=DTYPE))
+    return train_b, val_b, ref_np, terms
+
+
+def _loss_on(batch, net, loss_terms: tuple) -> float:
+    """The loss of ``net`` on every window of ``batch`` (in chunks of 2048, no gradient)."""
+    import torch
+
+    P, wh, ws, ref = loss_terms
+    with torch.no_grad():
+        parts = [errors(batch.take(slice(a, a + 2048)), P, net) for a in range(0, len(batch), 2048)]
+        return float(loss_of(torch.cat(parts), wh, ws, ref))
+
+
+def _epoch(net, opt, train_b, order, cfg: ResidualConfig, loss_terms: tuple, clock) -> tuple[float, int, dict]:
+    """One pass over the training windows in ``order``, a step per batch (a batch whose loss or gradient is
+    not finite is skipped); its mean training loss, the skipped batches and where the time went."""
+    import torch
+
+    P, wh, ws, ref = loss_terms
+    spent = dict.fromkeys(("gather_s", "forward_s", "backward_s", "validation_s"), 0.0)
+    total, n, skipped = 0.0, 0, 0
+    for a in range(0, len(order), cfg.batch):
+        t1 = clock()
+        idx = order[a:a + cfg.batch]
+        b = train_b.take(idx)
+        t2 = clock()
+        loss = loss_of(errors(b, P, net), wh, ws, ref)
+        t3 = clock()
+        opt.zero_grad()
+        loss.backward()
+        norm = torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.clip)
+        if math.isfinite(loss.item()) and math.isfinite(norm.item()):
+            opt.step()
+            total += loss.item() * len(idx)
+            n += len(idx)
+        else:
+            skipped += 1
+        t4 = clock()
+        spent["gather_s"] += t2 - t1
+        spent["forward_s"] += t3 - t2
+        spent["backward_s"] += t4 - t3  # with the clip and Adam's step
+    return total / max(n, 1), skipped, spent
 
 
 def validation_blocks(pieces: list[Piece], vehicles: dict, H: int) -> dict:

@@ -83,36 +83,36 @@ def read(path: str | Path, topics: dict | None = None) -> pd.DataFrame:
         reader.close()
 
 
-def _read(reader, path: Path, topics: dict) -> pd.DataFrame:
-    conns = {c.topic: c for c in reader.connections}
+def _choose(conns: dict, topics: dict, path: Path, kind: str, types: tuple, required: bool = True):
+    """The connection of ``kind`` (pose, rotors, imu): the topic named by ``--topic``, else the one topic of
+    one of ``types`` with messages."""
     have = ", ".join(f"{t} ({_normal(c.msgtype)})" for t, c in sorted(conns.items())) or "none"
+    if kind in topics:
+        c = conns.get(topics[kind])
+        if c is None:
+            raise QrInputError(path, f"--topic {kind}={topics[kind]}: no such topic (the bag has: {have})",
+                               "name one of the bag's topics")
+        return c
+    found = [c for c in conns.values() if _normal(c.msgtype) in types and c.msgcount > 0]
+    if len(found) > 1:
+        raise QrInputError(path, f"several {kind} topics ({', '.join(c.topic for c in found)})",
+                           f"choose one with --topic {kind}=/name")
+    if not found and required:
+        raise QrInputError(path, f"no {kind} topic ({' or '.join(t.replace('/msg/', '/') for t in types)}; "
+                                 f"the bag has: {have})", f"record one, or name it with --topic {kind}=/name")
+    return found[0] if found else None
 
-    def choose(kind, types, required=True):
-        if kind in topics:
-            c = conns.get(topics[kind])
-            if c is None:
-                raise QrInputError(path, f"--topic {kind}={topics[kind]}: no such topic (the bag has: {have})",
-                                   "name one of the bag's topics")
-            return c
-        found = [c for c in conns.values() if _normal(c.msgtype) in types and c.msgcount > 0]
-        if len(found) > 1:
-            raise QrInputError(path, f"several {kind} topics ({', '.join(c.topic for c in found)})",
-                               f"choose one with --topic {kind}=/name")
-        if not found and required:
-            raise QrInputError(path, f"no {kind} topic ({' or '.join(t.replace('/msg/', '/') for t in types)}; "
-                                     f"the bag has: {have})", f"record one, or name it with --topic {kind}=/name")
-        return found[0] if found else None
 
-    pose_c = choose("pose", POSE_TYPES)
-    rotor_c = choose("rotors", ROTOR_TYPES + (ARRAY_TYPES if "rotors" in topics else ()))
-    imu_c = choose("imu", IMU_TYPES, required=False)
+def _messages(reader, conn):
+    for c, received, raw in reader.messages(connections=[conn]):
+        yield reader.deserialize(raw, c.msgtype), received
 
-    def messages(conn):
-        for c, received, raw in reader.messages(connections=[conn]):
-            yield reader.deserialize(raw, c.msgtype), received
 
+def _pose_table(reader, pose_c, path: Path) -> tuple[pd.DataFrame, np.ndarray, int]:
+    """The poses in time order (a repeated stamp: the first message stands), t from the first pose; the
+    table, its stamps (ns from the first) and the first stamp (ns)."""
     rows = []
-    for msg, rec in messages(pose_c):
+    for msg, rec in _messages(reader, pose_c):
         pose = msg.pose.pose if _normal(pose_c.msgtype) == "nav_msgs/msg/Odometry" else msg.pose
         p, o = pose.position, pose.orientation
         rows.append((_stamp_ns(msg, rec), p.x, p.y, p.z, o.w, o.x, o.y, o.z))
@@ -121,18 +121,27 @@ def _read(reader, path: Path, topics: dict) -> pd.DataFrame:
     rows.sort(key=lambda r: r[0])
     t0 = rows[0][0]
     pose = np.array([(r[0] - t0, *r[1:]) for r in rows], dtype=float)  # ns from the first pose (exact in int)
-    keep = np.concatenate([[True], np.diff(pose[:, 0]) > 0])  # a repeated stamp: the first message stands
+    keep = np.concatenate([[True], np.diff(pose[:, 0]) > 0])
     pose = pose[keep]
     t_ns = pose[:, 0]
     q = make_continuous(pose[:, 4:8])
     df = pd.DataFrame({"t": t_ns * 1e-9, "px": pose[:, 1], "py": pose[:, 2], "pz": pose[:, 3],
                        "qw": q[:, 0], "qx": q[:, 1], "qy": q[:, 2], "qz": q[:, 3]})
+    return df, t_ns, t0
+
+
+def _read(reader, path: Path, topics: dict) -> pd.DataFrame:
+    conns = {c.topic: c for c in reader.connections}
+    pose_c = _choose(conns, topics, path, "pose", POSE_TYPES)
+    rotor_c = _choose(conns, topics, path, "rotors", ROTOR_TYPES + (ARRAY_TYPES if "rotors" in topics else ()))
+    imu_c = _choose(conns, topics, path, "imu", IMU_TYPES, required=False)
+    df, t_ns, t0 = _pose_table(reader, pose_c, path)
 
     def onto(stamps, values):
         return resample.onto(t_ns, np.array([s - t0 for s in stamps], dtype=float), values)
 
     stamps, speeds = [], []
-    for msg, rec in messages(rotor_c):
+    for msg, rec in _messages(reader, rotor_c):
         vals = np.asarray(msg.data if _normal(rotor_c.msgtype) in ARRAY_TYPES else msg.angular_velocities, float)
         if vals.size < 4:
             raise QrInputError(path, f"topic {rotor_c.topic} holds {vals.size} rotor speeds, not 4",
@@ -148,7 +157,7 @@ def _read(reader, path: Path, topics: dict) -> pd.DataFrame:
     sources = {"pose": pose_c.topic, "rotors": rotor_c.topic}
     if imu_c is not None:
         st, vals = [], []
-        for msg, rec in messages(imu_c):
+        for msg, rec in _messages(reader, imu_c):
             w, a = msg.angular_velocity, msg.linear_acceleration
             st.append(_stamp_ns(msg, rec))
             vals.append((w.x, w.y, w.z, a.x, a.y, a.z))
