@@ -515,16 +515,7 @@ def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
     se = 1 / np.sqrt(max(rows / _window(step) - 3, 1.0))  # Fisher: a window's samples are one
     reach = int(round(MAX_LAG_S / step))
     readings, maps = layout_readings(vehicle)
-    best, stats_of, lag_of = None, {}, None  # per reading: its correlations at its best lag
-    for lag in range(-reach, reach + 1, max(1, reach // 6)):
-        st = LayoutStats.of(*_partial(pairs, lag, step))
-        stats_of[lag] = st
-        c = _correlations(st.C.sum(0), st.d.sum(0), st.e.sum(0), maps)
-        if best is None:
-            best, lag_of = c, np.full(len(c), lag)
-        else:
-            better = c.sum(axis=1) > best.sum(axis=1)
-            best, lag_of = np.where(better[:, None], c, best), np.where(better, lag, lag_of)
+    best, stats_of, lag_of = _best_lags(pairs, step, reach, maps)
     written = best[0]
     # the best other reading, ties within numerical noise to the earlier (the same on every machine)
     i = min(range(1, len(readings)), key=lambda j: (-rank_key(float(best[j].sum())), j))
@@ -547,16 +538,36 @@ def check_rotor_layout(pieces: list[pd.DataFrame], vehicle) -> CheckResult:
     beaten = beaten and all(m.at_least(float(x), 2 * se, on_edge=False) for x in c[:2])
     if not beaten:
         return CheckResult("rotor_layout", True, measured + ": the file's layout fits")
+    return CheckResult("rotor_layout", False, measured + ": that reading fits clearly better",
+                       _layout_mistake(other, vehicle), _fix(other, vehicle, maps[i]))
+
+
+def _best_lags(pairs, step: float, reach: int, maps: np.ndarray):
+    """Per reading (row of ``maps``), its partial correlations at its best lag of the rotor stream (the largest
+    sum; the earlier lag on a tie), with each lag's statistics and the lag chosen per reading."""
+    best, stats_of, lag_of = None, {}, None
+    for lag in range(-reach, reach + 1, max(1, reach // 6)):
+        st = LayoutStats.of(*_partial(pairs, lag, step))
+        stats_of[lag] = st
+        c = _correlations(st.C.sum(0), st.d.sum(0), st.e.sum(0), maps)
+        if best is None:
+            best, lag_of = c, np.full(len(c), lag)
+        else:
+            better = c.sum(axis=1) > best.sum(axis=1)
+            best, lag_of = np.where(better[:, None], c, best), np.where(better, lag, lag_of)
+    return best, stats_of, lag_of
+
+
+def _layout_mistake(other: LayoutReading, vehicle) -> str:
+    """The likely mistake, in words, when ``other`` reads the rotor torques clearly better than the file."""
+    n = vehicle.rotors.n
     if other.geometry == "file" and other.order == tuple(range(n)):
-        mistake = "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"
-    elif other.geometry == "file":
-        mistake = f"the rotor columns look numbered differently: the layout's rotors 1..{n} are the log's " \
-                  f"{other.rotors_said()}" + ("" if other.yaw > 0 else ", with the yaw signs reversed")
-    else:
-        written_said = vehicle.raw.get("layout") if isinstance(vehicle.raw.get("layout"), str) else "its listed rotors"
-        mistake = f"the rotor torques look like {other.said(n)}, not the vehicle file's layout ({written_said})"
-    return CheckResult("rotor_layout", False, measured + ": that reading fits clearly better", mistake,
-                       _fix(other, vehicle, maps[i]))
+        return "the rotors' yaw signs look reversed (each rotor spins the other way than the layout says)"
+    if other.geometry == "file":
+        return f"the rotor columns look numbered differently: the layout's rotors 1..{n} are the log's " \
+               f"{other.rotors_said()}" + ("" if other.yaw > 0 else ", with the yaw signs reversed")
+    written_said = vehicle.raw.get("layout") if isinstance(vehicle.raw.get("layout"), str) else "its listed rotors"
+    return f"the rotor torques look like {other.said(n)}, not the vehicle file's layout ({written_said})"
 
 
 RUNNERS = {"thrust_axis": check_thrust_axis, "gyro": check_gyro, "rotor_layout": check_rotor_layout}

@@ -106,28 +106,7 @@ class ANN(Model):
             return loss + wd * sum((w**2).sum() for w in weights) if wd > 0 else loss
 
         every = int(c["check_every"])
-        if c["optimizer"] == "lbfgs":
-            opt = torch.optim.LBFGS(net.parameters(), lr=float(c["lr"] or 1.0), max_iter=every, max_eval=25 * every,
-                                    history_size=20, line_search_fn="strong_wolfe", tolerance_grad=1e-10,
-                                    tolerance_change=1e-14)
-
-            def closure():
-                opt.zero_grad()
-                loss = objective()
-                loss.backward()
-                return loss
-
-            def step():
-                opt.step(closure)
-        else:
-            opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"] or 0.01))
-
-            def step():
-                for _ in range(every):
-                    opt.zero_grad()
-                    objective().backward()
-                    opt.step()
-
+        step = _stepper(torch, c, net, objective, every)
         best, best_state, best_it, bad, it, stop = np.inf, None, 0, 0, 0, "max_iter"
         last = np.inf
         while it < int(c["max_iter"]):
@@ -218,3 +197,29 @@ class ANN(Model):
         m.net.load_state_dict(state["state_dict"])
         m.info = doc.get("info", {})
         return m
+
+
+def _stepper(torch, c, net, objective, every: int):
+    """One check interval of the optimiser (``model.optimizer``): ``every`` L-BFGS iterations (strong Wolfe line
+    search) or ``every`` Adam steps on ``objective``."""
+    if c["optimizer"] == "lbfgs":
+        opt = torch.optim.LBFGS(net.parameters(), lr=float(c["lr"] or 1.0), max_iter=every, max_eval=25 * every,
+                                history_size=20, line_search_fn="strong_wolfe", tolerance_grad=1e-10,
+                                tolerance_change=1e-14)
+
+        def closure():
+            opt.zero_grad()
+            loss = objective()
+            loss.backward()
+            return loss
+
+        return lambda: opt.step(closure)
+    opt = torch.optim.Adam(net.parameters(), lr=float(c["lr"] or 0.01))
+
+    def step():
+        for _ in range(every):
+            opt.zero_grad()
+            objective().backward()
+            opt.step()
+
+    return step
