@@ -1289,39 +1289,7 @@ def _ratio(p: Parameter, x: float) -> float | None:
 def statements(r: Refinement) -> list[str]:
     """Where the two estimates disagree beyond their standard errors, and what that means; what lies
     outside its physical range; what the refinement did on the training and the held-out windows."""
-    out = []
-    for p in r.parameters:
-        if not p.refined:
-            continue
-        ratio = _ratio(p, p.rollout)
-        times = "" if ratio is None or p.effect == "actuator_delay" else (
-            f" ({100 * (ratio - 1):+.2g} % of the one-step estimate)" if abs(ratio - 1) < 0.2 else
-            f" (× {ratio:.3g} of the one-step estimate)")
-        if not p.in_range:
-            lo, hi = p.physical
-            side = f"above its physical range (at most {_g(p.total(hi))}" if p.rollout > hi else \
-                f"below its physical range (at least {_g(p.total(lo))}"
-            why = {"inertia_error": ", the rigid-body limit m r²: no mass beyond the rotors",
-                   "yaw_torque_gain": ", a propeller's torque-to-thrust ratio"}.get(p.effect, "")
-            kept = (f"it is held at the one-step value {_g(p.total(p.one_step))} in the written model"
-                    if p.written == p.one_step else
-                    f"the written model has {_g(p.total(p.written))}, within its range (the held-out windows chose "
-                    "the range's end over the one-step value)")
-            out.append(f"The rollout wants {p.label} = {_g(p.total(p.rollout))}{times}, {side}{why}); {kept}. "
-                       + _meaning(p, ratio, True))
-        elif p.disagree:
-            se = f" ± {_g(p.rollout_se)}" if p.rollout_se else ""
-            se1 = f" ± {_g(p.one_step_se)}" if p.one_step_se else " (the vehicle file's, no standard error)"
-            out.append(f"{p.label}: the rollout wants {_g(p.total(p.rollout))}{se}, the one-step fit "
-                       f"{_g(p.total(p.one_step))}{se1}: {abs(p.z):.1f} standard errors apart{times}. "
-                       + _meaning(p, ratio, False))
-        elif p.bound_hit and p.total(p.rollout) == p.total(p.one_step):
-            out.append(f"{p.label}: the rollout's optimum is the one-step value, its {p.bound_hit} bound "
-                       f"{_g(p.total(p.rollout))}.")
-        elif p.bound_hit:
-            out.append(f"{p.label}: the rollout's optimum lies on its {p.bound_hit} plausible bound "
-                       f"{_g(p.total(p.rollout))}{times}: it wants a value the catalog's range rules out; held at the "
-                       f"one-step value {_g(p.total(p.one_step))} in the written model. " + _meaning(p, ratio, True))
+    out = [x for p in r.parameters if p.refined and (x := _parameter_sentence(p))]
     for p in r.parameters:
         lo, hi = p.physical
         if not lo <= p.written <= hi:
@@ -1331,6 +1299,55 @@ def statements(r: Refinement) -> list[str]:
              if p.refined and p.in_range and not p.disagree and not p.bound_hit and p.z is not None]
     if agree:
         out.append(f"Within {DISAGREE_Z:g} standard errors of each other: {', '.join(agree)}.")
+    out += _admission_sentences(r)
+    for d in r.unconstrained:
+        out.append(f"The data cannot fix {d.words()}: this combination stays at its one-step values in the written "
+                   "model (unconstrained).")
+    out += _ablation_words(r)
+    if r.diverged:
+        out.append(f"{r.diverged} of the {r.windows} training windows diverge under the written model; each is scored "
+                   "as qr evaluate scores it (its last sane state held).")
+    return out + _window_sentences(r)
+
+
+def _parameter_sentence(p) -> str | None:
+    """What the rollout wants of a refined parameter against the one-step fit, when that is worth a sentence
+    (outside its physical range, standard errors apart, on a plausible bound)."""
+    ratio = _ratio(p, p.rollout)
+    times = "" if ratio is None or p.effect == "actuator_delay" else (
+        f" ({100 * (ratio - 1):+.2g} % of the one-step estimate)" if abs(ratio - 1) < 0.2 else
+        f" (× {ratio:.3g} of the one-step estimate)")
+    if not p.in_range:
+        lo, hi = p.physical
+        side = f"above its physical range (at most {_g(p.total(hi))}" if p.rollout > hi else \
+            f"below its physical range (at least {_g(p.total(lo))}"
+        why = {"inertia_error": ", the rigid-body limit m r²: no mass beyond the rotors",
+               "yaw_torque_gain": ", a propeller's torque-to-thrust ratio"}.get(p.effect, "")
+        kept = (f"it is held at the one-step value {_g(p.total(p.one_step))} in the written model"
+                if p.written == p.one_step else
+                f"the written model has {_g(p.total(p.written))}, within its range (the held-out windows chose "
+                "the range's end over the one-step value)")
+        return (f"The rollout wants {p.label} = {_g(p.total(p.rollout))}{times}, {side}{why}); {kept}. "
+                + _meaning(p, ratio, True))
+    if p.disagree:
+        se = f" ± {_g(p.rollout_se)}" if p.rollout_se else ""
+        se1 = f" ± {_g(p.one_step_se)}" if p.one_step_se else " (the vehicle file's, no standard error)"
+        return (f"{p.label}: the rollout wants {_g(p.total(p.rollout))}{se}, the one-step fit "
+                f"{_g(p.total(p.one_step))}{se1}: {abs(p.z):.1f} standard errors apart{times}. "
+                + _meaning(p, ratio, False))
+    if p.bound_hit and p.total(p.rollout) == p.total(p.one_step):
+        return (f"{p.label}: the rollout's optimum is the one-step value, its {p.bound_hit} bound "
+                f"{_g(p.total(p.rollout))}.")
+    if p.bound_hit:
+        return (f"{p.label}: the rollout's optimum lies on its {p.bound_hit} plausible bound "
+                f"{_g(p.total(p.rollout))}{times}: it wants a value the catalog's range rules out; held at the "
+                f"one-step value {_g(p.total(p.one_step))} in the written model. " + _meaning(p, ratio, True))
+    return None
+
+
+def _admission_sentences(r: Refinement) -> list[str]:
+    """Per group of parameters the refinement tried beside the others: the held-out loss with and without it."""
+    out = []
     for g, (a, b, ok) in r.admission.items():
         if g.startswith("beyond"):
             if a is not None and b is not None:
@@ -1344,14 +1361,13 @@ def statements(r: Refinement) -> list[str]:
             out.append(f"{g}: fitted beside the others it takes the held-out windows' loss from {a:.4g} to {b:.4g} "
                        f"({100 * (b / a - 1):+.1f} %): " + ("admitted." if ok else
                                                             f"not admitted (it must lower it by {100 * ADMIT_GAIN:g} %)."))
-    for d in r.unconstrained:
-        out.append(f"The data cannot fix {d.words()}: this combination stays at its one-step values in the written "
-                   "model (unconstrained).")
-    out += _ablation_words(r)
-    if r.diverged:
-        out.append(f"{r.diverged} of the {r.windows} training windows diverge under the written model; each is scored "
-                   "as qr evaluate scores it (its last sane state held).")
-    H = r.horizon
+    return out
+
+
+def _window_sentences(r: Refinement) -> list[str]:
+    """The extended (one-step) and the refined model's ratios to rate_frozen at h = H on the training and the
+    held-out windows."""
+    out, H = [], r.horizon
     for name, blocks in (("training", r.training), ("held-out", r.held_out)):
         if not blocks:
             continue
