@@ -729,14 +729,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     free, wanted, iters, stopped, admission = _admit(fit, specs, theta0, held_out, vehicle, H, weight, settings, log)
     cov_wanted = fit.covariance(wanted, free)
     se = fit.stderr(wanted, cov_wanted)
-    params = []
-    for k, s in enumerate(specs):
-        hit = "lower" if wanted[k] <= s.lo + 1e-9 * s.scale else ("upper" if wanted[k] >= s.hi - 1e-9 * s.scale
-                                                                   else None)
-        params.append(Parameter(s.effect, s.name, _label(s), s.named, s.start, s.start_se, float(wanted[k]),
-                                None if hit or not np.isfinite(se[k]) else float(se[k]), float(wanted[k]),
-                                (s.lo, s.hi), (s.phys_lo, s.phys_hi), hit if free[k] else None, s.reference,
-                                bool(free[k]), s.followers))
+    params = _parameters(specs, wanted, se, free)
     beyond = np.array([not p.in_range or (p.bound_hit is not None and p.rollout != p.one_step) for p in params])
     beyond &= free
     # the written model keeps the force and torque balance (every axis within 1 + BALANCE_TOL of the one-step
@@ -751,13 +744,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     for rule in rules:
         candidates[rule] = _written(fit, specs, params, theta0, wanted, free, beyond, pin, rule, settings, log, limits)
         iters += candidates[rule][1]
-    rule = rules[0]
-    if len(rules) > 1:  # chosen on the held-out windows (the diagnosis's held-out part of the same flights)
-        val = _validation(fit, held_out, settings) if held_out else None
-        losses = {r: val.cost(c[0]) for r, c in candidates.items()} if val is not None else {}
-        rule = min(losses, key=lambda r: (losses[r], r != "hold")) if losses else "hold"
-        admission["beyond: hold or bound"] = (losses.get("hold"), losses.get("bound"), rule == "bound")
-    written, _, stopped2 = candidates[rule]
+    written, _, stopped2 = candidates[_beyond_rule(fit, held_out, settings, candidates, admission)]
     if stopped2:
         stopped = f"{stopped}; the written model: {stopped2}"
     balance_after = None
@@ -779,6 +766,34 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
                       time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission,
                       None if limits is None else limits[1], balance_after, covariance, band_scale)
+
+
+def _parameters(specs: list[_Spec], wanted, se, free) -> list[Parameter]:
+    """Each parameter's record after the first fit (what the rollout wants; its written value set later): a
+    value on a plausible bound has no standard error."""
+    params = []
+    for k, s in enumerate(specs):
+        hit = "lower" if wanted[k] <= s.lo + 1e-9 * s.scale else ("upper" if wanted[k] >= s.hi - 1e-9 * s.scale
+                                                                   else None)
+        params.append(Parameter(s.effect, s.name, _label(s), s.named, s.start, s.start_se, float(wanted[k]),
+                                None if hit or not np.isfinite(se[k]) else float(se[k]), float(wanted[k]),
+                                (s.lo, s.hi), (s.phys_lo, s.phys_hi), hit if free[k] else None, s.reference,
+                                bool(free[k]), s.followers))
+    return params
+
+
+def _beyond_rule(fit, held_out: list[Windows], settings: RefineSettings, candidates: dict, admission: dict) -> str:
+    """Which written model stands when parameters were wanted beyond their ranges: the first rule alone, or of
+    "hold" and "bound" the one with the lower loss on the held-out windows (the diagnosis's held-out part of the
+    same flights; "hold" on a tie), recorded in ``admission``."""
+    rules = list(candidates)
+    if len(rules) == 1:
+        return rules[0]
+    val = _validation(fit, held_out, settings) if held_out else None
+    losses = {r: val.cost(c[0]) for r, c in candidates.items()} if val is not None else {}
+    rule = min(losses, key=lambda r: (losses[r], r != "hold")) if losses else "hold"
+    admission["beyond: hold or bound"] = (losses.get("hold"), losses.get("bound"), rule == "bound")
+    return rule
 
 
 def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, covariance, H: int,
