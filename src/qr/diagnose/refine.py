@@ -1059,6 +1059,37 @@ def _weights(train: list[Windows], vehicle, H: int) -> np.ndarray:
     return 1.0 / ref**2
 
 
+def _kept(constraint, theta, trial, z, dz, idx, sc, bounds, grad):
+    """A trial step of :meth:`_Fit.minimise` that keeps ``constraint`` (``(c, limit)``): one that breaks it is
+    projected onto the tangent plane of the components it breaks (their finite-difference gradients at
+    ``theta``, computed once per iteration: ``grad``, None until then), then halved up to 10 times; no step
+    if none keeps it.  The trial and ``grad``."""
+    c_fn, limit = constraint
+    blo, bhi = bounds
+    ct = c_fn(trial)
+    if (ct > limit).any():
+        if grad is None:
+            c0 = c_fn(theta)
+            grad = np.empty((len(c0), idx.size))
+            for j, k in enumerate(idx):
+                th = theta.copy()
+                h = FD_STEP * sc[j] if theta[k] + FD_STEP * sc[j] <= bhi[k] else -FD_STEP * sc[j]
+                th[k] += h
+                grad[:, j] = (c_fn(th) - c0) / (h / sc[j])
+        G = grad[ct > limit]  # keep the broken components where they are (first order)
+        M = np.ascontiguousarray(G @ G.T + 1e-12 * np.trace(G @ G.T) * np.eye(len(G)))
+        y, Lm = np.empty((len(G), 1)), np.empty_like(M)
+        if cholesky_solve(M, np.ascontiguousarray((G @ dz)[:, None]), Lm, y):
+            dz = dz - G.T @ y[:, 0]
+        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
+    for _ in range(10):
+        if (c_fn(trial) <= limit).all():
+            return trial, grad
+        dz = 0.5 * dz
+        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
+    return theta.copy(), grad
+
+
 class _Fit:
     """The loss, its Gauss–Newton normal equations and the minimiser, in the scaled parameters θ / scale."""
 
@@ -1158,30 +1189,7 @@ class _Fit:
                 trial = theta.copy()
                 trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
                 if constraint is not None:
-                    c_fn, limit = constraint
-                    ct = c_fn(trial)
-                    if (ct > limit).any():
-                        if grad is None:
-                            c0 = c_fn(theta)
-                            grad = np.empty((len(c0), idx.size))
-                            for j, k in enumerate(idx):
-                                th = theta.copy()
-                                h = FD_STEP * sc[j] if theta[k] + FD_STEP * sc[j] <= bhi[k] else -FD_STEP * sc[j]
-                                th[k] += h
-                                grad[:, j] = (c_fn(th) - c0) / (h / sc[j])
-                        G = grad[ct > limit]  # keep the broken components where they are (first order)
-                        M = np.ascontiguousarray(G @ G.T + 1e-12 * np.trace(G @ G.T) * np.eye(len(G)))
-                        y, Lm = np.empty((len(G), 1)), np.empty_like(M)
-                        if cholesky_solve(M, np.ascontiguousarray((G @ dz)[:, None]), Lm, y):
-                            dz = dz - G.T @ y[:, 0]
-                        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
-                    for _ in range(10):
-                        if (c_fn(trial) <= limit).all():
-                            break
-                        dz = 0.5 * dz
-                        trial[idx] = np.clip((z + dz) * sc, blo[idx], bhi[idx])
-                    else:
-                        trial = theta.copy()
+                    trial, grad = _kept(constraint, theta, trial, z, dz, idx, sc, (blo, bhi), grad)
                 new = self.cost(trial) + penalty(trial[idx] / sc)
                 if new < cost:
                     theta = trial
