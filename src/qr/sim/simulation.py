@@ -165,7 +165,7 @@ def stability_study(sim: dict, child=None, progress: bool = True) -> StabilitySt
     """The models of ``simulate.stability.models`` whose inputs include ``a_b``."""
     from tqdm import tqdm
 
-    from .stability import analyse, format_eigs, growth_per_step
+    from .stability import analyse, format_eigs
 
     st = sim.get("stability") or {}
     veh = load_vehicle(st.get("vehicle") or sim["vehicle"])
@@ -204,24 +204,33 @@ def stability_study(sim: dict, child=None, progress: bool = True) -> StabilitySt
                "effective_mass_min_real": an.effective_mass_min_real,
                "implicit_prediction": an.implicit_prediction}
         for mode in ("lagged", "implicit"):
-            res = fly(traj, Plant(plant_vehicle, [], linear, mode), None, step_settings)
-            f = res.log[["f_true_x", "f_true_y", "f_true_z"]].to_numpy()
-            row |= {f"{mode}_status": res.status, f"{mode}_t_end_s": res.t_end,
-                    f"{mode}_rmse": res.metrics()["rmse"],
-                    f"{mode}_growth_per_step": growth_per_step(f) if res.diverged else 1.0,
-                    f"{mode}_message": res.message}
-            if res.diverged:
-                log.warning("%s (%s): %s", name, mode, res.message)
-            loops.append(Loop((name, mode), {"model": name, "mode": mode, "spec": spec},
-                              {"status": res.status, "t_end_s": res.t_end, "rmse": res.metrics()["rmse"],
-                               "max_abs_eig": an.max_abs_eig}, res.log))
+            cells, loop = _closed_loop(name, spec, mode, an, Plant(plant_vehicle, [], linear, mode), traj,
+                                       step_settings)
+            row |= cells
+            loops.append(loop)
             if child:
-                child(loops[-1])
+                child(loop)
         rows.append(row)
     if not rows:
         raise QrInputError("simulate.stability.models", "no enabled linear model with a_b among its inputs",
                            "add a model whose inputs include a_b")
     return StabilityStudy(pd.DataFrame(rows), analyses, tuple(loops), cfg.limits.max_accel_g)
+
+
+def _closed_loop(name: str, spec, mode: str, an, plant: Plant, traj, step_settings: SimSettings):
+    """One model flown in closed loop with its a_b fed back ``mode`` (lagged or implicit): the table's cells
+    for it and the :class:`Loop` record."""
+    from .stability import growth_per_step
+
+    res = fly(traj, plant, None, step_settings)
+    f = res.log[["f_true_x", "f_true_y", "f_true_z"]].to_numpy()
+    cells = {f"{mode}_status": res.status, f"{mode}_t_end_s": res.t_end, f"{mode}_rmse": res.metrics()["rmse"],
+             f"{mode}_growth_per_step": growth_per_step(f) if res.diverged else 1.0, f"{mode}_message": res.message}
+    if res.diverged:
+        log.warning("%s (%s): %s", name, mode, res.message)
+    return cells, Loop((name, mode), {"model": name, "mode": mode, "spec": spec},
+                       {"status": res.status, "t_end_s": res.t_end, "rmse": res.metrics()["rmse"],
+                        "max_abs_eig": an.max_abs_eig}, res.log)
 
 
 # ---- what the stage writes and tracks of a study ----------------------------------------------
