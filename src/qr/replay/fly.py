@@ -132,7 +132,6 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
     r = P[P_MARKER].copy()
     hist = history_buffer(P, dt, x0[X_ROTORS])
     u0 = x0[X_ROTORS].copy()
-    zero = np.zeros(3)
     lo, hi = vehicle.rotor_speed_min, vehicle.rotor_speed_max
     ticks = t0 + dt * np.arange(0, n + 1, every)
     ref = setpoints.at(ticks)
@@ -151,6 +150,17 @@ def _loop(vehicle, controller, setpoints, x0, t0, t1, actuation, sim_rate_hz, lo
         diverged = float(t[m]) if lost else None
         return Flown(t[:m], TP[:m, X_POS], TP[:m, X_VEL], X[:m, X_QUAT], X[:m, X_RATE], X[:m, X_ROTORS], thrust[:m],
                      duties[:m], X[:m], Ucmd[:m], diverged)
+    return _loop_in_python(vehicle, controller, actuation, x0, P, hist, (lo, hi), every, dt, t, ref, near, max_error_m)
+
+
+def _loop_in_python(vehicle, controller, actuation, x0, P, hist, limits, every: int, dt: float, t, ref, near,
+                    max_error_m) -> Flown:
+    """:func:`_loop` for any controller: the controller called in Python at its rate, the plant stepped compiled."""
+    lo, hi = limits
+    n = len(t) - 1
+    r = P[P_MARKER].copy()
+    u0 = x0[X_ROTORS].copy()
+    zero = np.zeros(3)
     X = np.full((n + 1, N_X), np.nan)
     TP = np.full((n + 1, X_QUAT.start), np.nan)  # the tracked point's p, v
     Ucmd = np.full((n + 1, 4), np.nan)
