@@ -216,6 +216,45 @@ def _act(x, t, k, n_steps, p_ref, v_ref, a_ref, yaw, yaw_rate, f_est, f_inj, acc
     return x, u_cmd, OK, 0.0
 
 
+@dataclass(frozen=True)
+class _Injection:
+    """The plant's learned force, injected at every step of :func:`fly` (``a_b_mode``: lagged or implicit)."""
+
+    force: object
+    implicit: bool
+    m_true: float
+    W_a: np.ndarray | None = None  # the model's a_b block (implicit)
+    M_eff: np.ndarray | None = None  # m I - W_a
+    singular: bool = False  # the model predicts its own label: no solution
+
+    @classmethod
+    def of(cls, plant: Plant, m_true: float) -> "_Injection | None":
+        force = plant.force
+        if force is None:
+            return None
+        if plant.a_b_mode != "implicit":
+            return cls(force, False, m_true)
+        W_a = force.block("a_b")
+        M_eff = m_true * np.eye(3) - W_a
+        return cls(force, True, m_true, W_a, M_eff, bool(np.linalg.cond(M_eff) > 1e12))
+
+    def at(self, x, R, acc, alpha, u_meas, u_dot, u_eff, P):
+        """The model's signals, the injected force and the plant's accelerations with it."""
+        zero = np.zeros(3)
+        # the model sees the acceleration measured before this step's force (thesis eq. 5.13)
+        s = _signals1(x, R, acc, alpha, u_meas, u_dot)
+        if self.implicit:  # (m I - W_a) a_b = m a0_b + r, with r the prediction at a_b = 0
+            a0, _ = plant_accels(x, u_eff, P, zero, zero)
+            s0 = _signals1(x, R, zero, alpha, u_meas, u_dot)
+            r = self.force.predict(s0)[0]
+            a_b = np.full(3, np.inf) if self.singular else np.linalg.solve(self.M_eff, self.m_true * (R.T @ a0) + r)
+            f_inj = self.W_a @ a_b + r
+        else:
+            f_inj = np.asarray(self.force.predict(s)[0], dtype=float)
+        acc, alpha = plant_accels(x, u_eff, P, f_inj, zero)
+        return s, f_inj, acc, alpha
+
+
 def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) -> FlightResult:
     """Fly ``ref`` with the plant; ``estimator`` None (nominal), a force model, or :data:`ORACLE`."""
     cfg = settings or SimSettings()
@@ -244,16 +283,10 @@ def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) 
     d_steps = float(P[P_DELAY] / dt)
     lim = cfg.limits
     limits = np.array([lim.max_position_error_m, lim.max_speed_m_s, lim.max_accel_g])
-    zero = np.zeros(3)
     f_inj = np.zeros(3)
     f_est = np.zeros(3)
     u_cmd = u0.copy()
-    force = plant.force
-    implicit = force is not None and plant.a_b_mode == "implicit"
-    if implicit:
-        W_a = force.block("a_b")
-        M_eff = m_true * np.eye(3) - W_a
-        singular = np.linalg.cond(M_eff) > 1e12  # the model predicts its own label: no solution
+    injection = _Injection.of(plant, m_true)
     out = np.zeros((n_steps // log_every + 1, N_RAW))
     j = 0
     status, message, t_end = "ok", "", n_steps * dt
@@ -262,18 +295,8 @@ def fly(ref, plant: Plant, estimator=None, settings: SimSettings | None = None) 
         p_ref, v_ref, a_ref, yaw, yaw_rate = ref.at(t)
         u_meas, u_eff, acc, alpha, R, u_dot = _measure(x, hist, u0, k, d_steps, P, f_inj, u_cmd, tau_m)
         s = None
-        if force is not None:
-            # the model sees the acceleration measured before this step's force (thesis eq. 5.13)
-            s = _signals1(x, R, acc, alpha, u_meas, u_dot)
-            if implicit:  # (m I - W_a) a_b = m a0_b + r, with r the prediction at a_b = 0
-                a0, _ = plant_accels(x, u_eff, P, zero, zero)
-                s0 = _signals1(x, R, zero, alpha, u_meas, u_dot)
-                r = force.predict(s0)[0]
-                a_b = np.full(3, np.inf) if singular else np.linalg.solve(M_eff, m_true * (R.T @ a0) + r)
-                f_inj = W_a @ a_b + r
-            else:
-                f_inj = np.asarray(force.predict(s)[0], dtype=float)
-            acc, alpha = plant_accels(x, u_eff, P, f_inj, zero)
+        if injection is not None:
+            s, f_inj, acc, alpha = injection.at(x, R, acc, alpha, u_meas, u_dot, u_eff, P)
         if estimator is ORACLE:
             f_est = true_force(x, u_eff, u_meas, P, f_inj, m_nom, ct_row)
         elif estimator is not None:
