@@ -361,3 +361,21 @@ def test_only_the_intake_checks_conventions_and_reads_the_filters_reports():
         if module not in ("qr.intake", "qr.conventions"):
             bad += [(module, what, line) for what, line in _intake_work(ast.parse(path.read_text()))]
     assert not bad, f"outside qr.intake (take flights through qr.intake.take, reports through read_reports): {bad}"
+
+
+MAX_FUNCTION_LINES = 60
+
+
+def test_no_function_is_longer_than_60_lines_but_a_compiled_kernel():
+    """Every function of src/qr fits in 60 lines (docstring included), but a numba kernel (decorated ``njit`` /
+    ``jit``): inside one a call to a helper is compiled in or paid per call, so its steps stay together."""
+    long = []
+    for path in sorted(SRC.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            size = node.end_lineno - node.lineno + 1
+            kernel = any("jit" in ast.unparse(d) for d in node.decorator_list)
+            if size > MAX_FUNCTION_LINES and not kernel:
+                long.append(f"{path.relative_to(SRC)}:{node.lineno} {node.name} ({size} lines)")
+    assert not long, long

@@ -26,6 +26,22 @@ MIN_GROUND_HEIGHT = 0.02  # m; keeps k T / p_z² finite if a crash is simulated
 def true_params(vehicle, effects: list[dict] | None = None, residual: bool = True) -> np.ndarray:
     """Pack the vehicle and catalog effects into the plant's parameter vector (``residual``: with the
     vehicle's learned wrench, if it has one, appended after ``N_P``)."""
+    P = _vehicle_params(vehicle)
+    for e in effects or []:
+        _add_effect(P, e["name"], e["parameters"])
+    if P[P_MASS] <= 0 or np.any(P[P_J] <= 0):
+        raise ValueError("effects make the true mass or inertia non-positive")
+    net = getattr(vehicle, "residual", None)
+    if residual and net is not None:
+        from ..residual import pack
+
+        P[P_RES_ON] = 1.0
+        P = np.concatenate([P, pack(net)])
+    return P
+
+
+def _vehicle_params(vehicle) -> np.ndarray:
+    """The parameter vector of the vehicle file alone (no effect, no learned wrench)."""
     P = np.zeros(N_P)
     P[P_MASS] = vehicle.mass
     P[P_J] = vehicle.inertia
@@ -44,55 +60,49 @@ def true_params(vehicle, effects: list[dict] | None = None, residual: bool = Tru
     if W:
         P[P_REM_ON] = 1.0
         P[P_REM] = np.asarray(W["weights"], float).ravel()
-    for e in effects or []:
-        n, k = e["name"], e["parameters"]
-        if n == "linear_drag":
-            P[P_LIN] += [k["kx"], k["ky"], k["kz"]]
-        elif n == "quadratic_drag":
-            P[P_QUAD] += [k["cx"], k["cy"], k["cz"]]
-        elif n == "rotor_drag":
-            P[P_RDRAG] += k["k"]
-        elif n == "wind_force":
-            P[P_WIND] += [k["fx"], k["fy"], k["fz"]]
-        elif n == "body_force_bias":
-            P[P_BBIAS] += [k["bx"], k["by"], k["bz"]]
-        elif n == "thrust_gain":
-            P[P_SCALE] *= k["gain"]
-        elif n == "mass_error":
-            P[P_MASS] += k["dm"]
-        elif n == "ground_effect":
-            P[P_GE] += k["k"]
-        elif n == "motor_imbalance":
-            P[P_SCALE] *= 1.0 + np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
-        elif n == "cg_offset":
-            P[P_CG] += [k["rx"], k["ry"]]
-        elif n == "torque_bias":
-            P[P_TBIAS] += [k["tx"], k["ty"], k["tz"]]
-        elif n == "yaw_torque_gain":
-            P[P_CQGAIN] *= k["gain"]
-        elif n == "inertia_error":
-            P[P_J] += [k["dJxx"], k["dJyy"], k["dJzz"]]
-        elif n == "actuator_delay":
-            P[P_DELAY] += k["delay_s"]
-        elif n == "marker_offset":
-            P[P_MARKER] += [k["rx"], k["ry"], k["rz"]]
-        elif n == "blade_flapping":
-            P[P_FLAP] += k["k"]
-        elif n == "rotor_drag_moment":
-            P[P_RDM] += k["k"]
-        elif n == "translational_lift":
-            P[P_TLIFT] += k["k"]
-        else:  # pragma: no cover - the catalog and this list must agree
-            raise KeyError(n)
-    if P[P_MASS] <= 0 or np.any(P[P_J] <= 0):
-        raise ValueError("effects make the true mass or inertia non-positive")
-    net = getattr(vehicle, "residual", None)
-    if residual and net is not None:
-        from ..residual import pack
-
-        P[P_RES_ON] = 1.0
-        P = np.concatenate([P, pack(net)])
     return P
+
+
+def _add_effect(P: np.ndarray, n: str, k: dict) -> None:
+    """Catalog effect ``n`` with parameters ``k`` added into ``P`` (gains multiply, offsets add)."""
+    if n == "linear_drag":
+        P[P_LIN] += [k["kx"], k["ky"], k["kz"]]
+    elif n == "quadratic_drag":
+        P[P_QUAD] += [k["cx"], k["cy"], k["cz"]]
+    elif n == "rotor_drag":
+        P[P_RDRAG] += k["k"]
+    elif n == "wind_force":
+        P[P_WIND] += [k["fx"], k["fy"], k["fz"]]
+    elif n == "body_force_bias":
+        P[P_BBIAS] += [k["bx"], k["by"], k["bz"]]
+    elif n == "thrust_gain":
+        P[P_SCALE] *= k["gain"]
+    elif n == "mass_error":
+        P[P_MASS] += k["dm"]
+    elif n == "ground_effect":
+        P[P_GE] += k["k"]
+    elif n == "motor_imbalance":
+        P[P_SCALE] *= 1.0 + np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
+    elif n == "cg_offset":
+        P[P_CG] += [k["rx"], k["ry"]]
+    elif n == "torque_bias":
+        P[P_TBIAS] += [k["tx"], k["ty"], k["tz"]]
+    elif n == "yaw_torque_gain":
+        P[P_CQGAIN] *= k["gain"]
+    elif n == "inertia_error":
+        P[P_J] += [k["dJxx"], k["dJyy"], k["dJzz"]]
+    elif n == "actuator_delay":
+        P[P_DELAY] += k["delay_s"]
+    elif n == "marker_offset":
+        P[P_MARKER] += [k["rx"], k["ry"], k["rz"]]
+    elif n == "blade_flapping":
+        P[P_FLAP] += k["k"]
+    elif n == "rotor_drag_moment":
+        P[P_RDM] += k["k"]
+    elif n == "translational_lift":
+        P[P_TLIFT] += k["k"]
+    else:  # pragma: no cover - the catalog and this list must agree
+        raise KeyError(n)
 
 
 @nb.njit(cache=True)
