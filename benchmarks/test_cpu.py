@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/test_cpu.py                       # the whole suite (-n 2 --dist loadgroup)
     .venv/bin/python benchmarks/test_cpu.py tests/diagnose -n 0   # any pytest arguments instead
+    QR_TEST_CPU_TOP=80 .venv/bin/python benchmarks/test_cpu.py    # the 80 costliest tests (default 25)
 
 On 2 cores the suite is CPU-bound (user + system CPU / wall ≈ 1.96 on a quiet machine), so its wall
 time is its CPU time over two: CPU, not wall, says what a cut saves, and it hardly depends on the
@@ -71,7 +72,7 @@ def main() -> None:
     for module, cpu in by_module.most_common(25):
         print(f"| {cpu:.1f} | {100 * cpu / total:.1f} % | {module} |")
     print("\n| CPU (s) | wall (s) | test |\n|---:|---:|:---|")
-    for node, cpu, w, _ in sorted(rows, key=lambda r: -r[1])[:25]:
+    for node, cpu, w, _ in sorted(rows, key=lambda r: -r[1])[:int(os.environ.get("QR_TEST_CPU_TOP", 25))]:
         print(f"| {cpu:.1f} | {w:.1f} | {node} |")
 
 

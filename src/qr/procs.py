@@ -152,9 +152,21 @@ def sigterm_raises() -> Iterator[None]:
 @contextlib.contextmanager
 def signals_held() -> Iterator[None]:
     """SIGINT and SIGTERM wait (and are delivered afterwards) while something must not be cut short
-    (a run's final status, the moves that put an output in place)."""
+    (a run's final status, the moves that put an output in place).
+
+    Masking the signals is not enough: the kernel then hands a process-directed signal to another thread
+    (numba's, torch's, a timer's), and Python runs its handler in the main thread at once, inside the block.
+    So in the main thread the handlers themselves are swapped for one that notes the signal, and the first
+    noted signal is raised again after the block, to the handler that was there before."""
+    held = (signal.SIGINT, signal.SIGTERM)
+    pending: list[int] = []
+    swapped = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in held:
+            if signal.getsignal(sig) is not None:  # None: a handler not set from Python, left as it is
+                swapped[sig] = signal.signal(sig, lambda signum, frame: pending.append(signum))
     try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, set(held))
     except (AttributeError, ValueError, OSError):
         old = None
     try:
@@ -162,6 +174,10 @@ def signals_held() -> Iterator[None]:
     finally:
         if old is not None:
             signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in swapped.items():
+            signal.signal(sig, handler)
+        if pending:
+            signal.raise_signal(pending[0])
 
 
 # ---- write-then-rename temporaries ---------------------------------------------------------

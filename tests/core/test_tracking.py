@@ -105,3 +105,39 @@ def test_a_cancel_that_lands_while_the_run_is_created_ends_it_killed(tmp_path, m
     assert not reached  # the job stopped before its body ran
     runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
     assert runs["cancelled"].info.status == "KILLED"
+
+
+def test_a_ctrl_c_that_another_thread_takes_waits_until_the_runs_status_is_written(tmp_path, monkeypatch):
+    """Ctrl-C while the run's final status is written, taken by another thread of the process (numba's, torch's,
+    a timer's: the main thread's signal mask does not hold it there): the status is still written, and the
+    interrupt comes right after.  It was lost before, and the run stayed RUNNING until the next job reaped it."""
+    import signal
+    import threading
+
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+
+    client = tracking._client()
+    real = type(client).set_terminated
+    go, taken = threading.Event(), threading.Event()
+
+    def other_thread():  # started before the run, as a pool's threads are: its signal mask is the process's
+        go.wait()
+        signal.raise_signal(signal.SIGINT)  # this thread's C handler notes it; Python runs the handler in main
+        taken.set()
+
+    def interrupted_meanwhile(self, *args, **kwargs):
+        go.set()
+        assert taken.wait(60)
+        sum(range(1000))  # bytecodes: where Python runs the noted handler
+        return real(self, *args, **kwargs)
+
+    helper = threading.Thread(target=other_thread, daemon=True)
+    helper.start()
+    monkeypatch.setattr(type(client), "set_terminated", interrupted_meanwhile)
+    with pytest.raises(KeyboardInterrupt):
+        with tracking.run("unit", "interrupted at the end", {}):
+            pass
+    helper.join(60)
+    runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
+    assert runs["interrupted at the end"].info.status == "FINISHED"
