@@ -214,6 +214,7 @@ UNATOMIC_WRITES = {
     ("qr.report.background", "collect"): "moves a figure drawn in a private temporary folder into the caller's "
                                          "atomic_dir (the diagnosis's figures folder)",
     ("qr.tracking", "_store_lock"): "the MLflow store's lock file (flock): no output, never read",
+    ("qr.errors", "job_log"): "a workflow job's log (the rule's `log:` file), written as the job goes: no output",
 }
 
 
@@ -379,3 +380,14 @@ def test_no_function_is_longer_than_60_lines_but_a_compiled_kernel():
             if size > MAX_FUNCTION_LINES and not kernel:
                 long.append(f"{path.relative_to(SRC)}:{node.lineno} {node.name} ({size} lines)")
     assert not long, long
+
+
+def test_every_workflow_script_writes_its_log_through_job_log():
+    """The scripts stay thin and their errors reach the user: each opens its rule's log with qr.errors.job_log
+    (or hands it to a subprocess), none swaps sys.stderr by hand (the error was then printed to a closed file)."""
+    scripts = sorted((ROOT / "workflow" / "scripts").glob("*.py"))
+    assert len(scripts) > 20
+    for p in scripts:
+        text = p.read_text()
+        assert "sys.stderr =" not in text, p.name
+        assert "job_log(snakemake.log[0])" in text or "stderr=subprocess.STDOUT" in text, p.name

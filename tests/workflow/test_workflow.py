@@ -56,3 +56,29 @@ def test_ingest_and_summary_on_a_subset(tmp_path):
     assert (tmp_path / "results" / "ingest" / "summary_by_set.md").exists()
     assert (tmp_path / "results" / "figures" / "ingest_residual_z.png").stat().st_size > 1000
     assert (tmp_path / "results" / "benchmarks" / "ingest" / "summary.tsv").exists()
+
+
+def test_a_job_that_fails_on_bad_input_says_why_in_its_log_and_in_snakemakes_output(tmp_path):
+    """A user's data set with a broken flight: the ingest job ends with qr's one line (file, problem, fix) in its
+    log file and in what Snakemake prints.  The scripts' own stderr redirection lost it before: the log was
+    closed when Python printed the error ("lost sys.stderr"), so the user saw neither."""
+    import os
+
+    import yaml
+
+    (tmp_path / "data" / "csv").mkdir(parents=True)
+    (tmp_path / "data" / "csv" / "f0.csv").write_text("t,x\n0.0,1.0\n0.01,1.0\n")  # no attitude, no rotors
+    spec = {"name": "broken", "root": str(tmp_path / "data"), "format": "auto",
+            "sets": {"bad": {"dir": "csv", "suffix": ".csv", "vehicle": "asctec_hummingbird", "flights": ["f0"]}}}
+    (tmp_path / "data.yaml").write_text(yaml.safe_dump(spec))
+    for name in ("conf", "workflow", "Snakefile"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    out = subprocess.run([SNAKEMAKE, "--cores", "1", "--config", f"data={tmp_path / 'data.yaml'}",
+                          "--", "results/ingest/summary.csv"], cwd=tmp_path, capture_output=True, text=True,
+                         env={**os.environ, "QR_RESULTS": str(tmp_path / "results"), "QR_TRACKING": "off"})
+    assert out.returncode != 0
+    log = (tmp_path / "results" / "logs" / "ingest" / "bad" / "batch0.log").read_text()
+    line = next(x for x in log.splitlines() if x.startswith("qr: error: "))
+    assert "f0.csv: " in line and "; fix: " in line, log
+    assert line in out.stdout + out.stderr and "lost sys.stderr" not in out.stdout + out.stderr
+    assert not (tmp_path / "results" / "ingest" / "bad" / "f0.parquet").exists()

@@ -1,13 +1,12 @@
 """Snakemake rule `evaluate_learned`: the rollout-trained residuals on a set's held-out flights."""
-import sys
 from pathlib import Path
 
+from qr.errors import job_log
 from qr.holdout import SplitConfig
 from qr.stages.evaluate_sets import evaluate_learned
 
 carried = [Path(snakemake.input.carried) / "hybrid_vehicle.yaml"] if snakemake.input.carried else []
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = log
+with job_log(snakemake.log[0]):
     evaluate_learned(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle,
                      [*carried, Path(snakemake.input.residual) / "hybrid_vehicle.yaml"],
                      ["hybrid (rollout-trained, carried over)", "hybrid (rollout-trained, fine-tuned)"] if carried

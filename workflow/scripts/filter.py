@@ -1,10 +1,9 @@
 """Snakemake rules `filter_<set>_<k>`: a batch of one set's canonical flights -> state tables + NIS reports
 (their MLflow runs: filter_summary)."""
-import sys
 
+from qr.errors import job_log
 from qr.stages.filter_sets import run_batch
 
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = log
+with job_log(snakemake.log[0]):
     run_batch(snakemake.input.flights, snakemake.input.vehicle, snakemake.output.states, snakemake.output.nis,
               snakemake.output.crossfit, snakemake.params.names, snakemake.params.overrides)

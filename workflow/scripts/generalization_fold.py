@@ -1,11 +1,10 @@
 """Snakemake rule `generalization_fold`: one held-out split of a set, trained and scored."""
-import sys
 
+from qr.errors import job_log
 from qr.holdout import Fold
 from qr.stages.evaluate_sets import run_fold
 
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = log
+with job_log(snakemake.log[0]) as log:
     run_fold(snakemake.input.flights, snakemake.input.nis, snakemake.input.vehicle, snakemake.output[0],
              Fold.from_dict(snakemake.params.fold), snakemake.params.overrides, snakemake.params.single,
              snakemake.params.residual, estimates=snakemake.input.crossfit,

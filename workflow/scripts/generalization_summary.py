@@ -1,10 +1,9 @@
 """Snakemake rule `generalization_summary`: results/tables/generalization.csv (and .md)."""
-import sys
 
+from qr.errors import job_log
 from qr.report.generalization import read_fold, read_scored, write
 
-with open(snakemake.log[0], "w") as log:
-    sys.stderr = log
+with job_log(snakemake.log[0]):
     scored = []
     for name, held_out, learned in zip(snakemake.params.names, snakemake.input.repeat, snakemake.input.learned):
         scored.append(read_scored(name, "repeat", None, [held_out, learned]))
