@@ -82,3 +82,27 @@ def test_a_job_that_fails_on_bad_input_says_why_in_its_log_and_in_snakemakes_out
     assert "f0.csv: " in line and "; fix: " in line, log
     assert line in out.stdout + out.stderr and "lost sys.stderr" not in out.stdout + out.stderr
     assert not (tmp_path / "results" / "ingest" / "bad" / "f0.parquet").exists()
+
+
+def test_a_data_set_whose_vehicle_is_not_there_is_refused_at_the_start_in_one_line(tmp_path):
+    """A set's vehicle that names nothing shipped, or a file that is not there: one line naming the data set file,
+    the key and the fix (the shipped names), before any job; before, Snakemake reported a missing input of each job."""
+    import os
+
+    import yaml
+
+    (tmp_path / "data" / "csv").mkdir(parents=True)
+    (tmp_path / "data" / "csv" / "f0.csv").write_text("t\n0\n")
+    for name in ("conf", "workflow", "Snakefile"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    for vehicle, problem in (("hummingbird", "hummingbird is neither a shipped vehicle nor a vehicle file (.yaml)"),
+                             ("mine.yaml", f"mine.yaml is not a file ({tmp_path / 'mine.yaml'})")):
+        spec = {"name": "mine", "root": str(tmp_path / "data"),
+                "sets": {"s": {"dir": "csv", "suffix": ".csv", "vehicle": vehicle, "flights": ["f0"]}}}
+        (tmp_path / "data.yaml").write_text(yaml.safe_dump(spec))
+        out = subprocess.run([SNAKEMAKE, "--cores", "1", "--config", f"data={tmp_path / 'data.yaml'}"], cwd=tmp_path,
+                             capture_output=True, text=True, env={**os.environ, "QR_RESULTS": str(tmp_path / "results")})
+        assert out.returncode != 0
+        line = f"{tmp_path / 'data.yaml'}: sets.s.vehicle: {problem}; fix: name a shipped vehicle (asctec_hummingbird, "
+        assert line in out.stdout + out.stderr, out.stdout + out.stderr
+        assert not (tmp_path / "results").exists()

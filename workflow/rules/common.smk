@@ -34,7 +34,7 @@ validate(config, "../schemas/config.schema.yaml")
 # the process that left it is gone (qr.procs).  Snakemake's own lock is Snakemake's (`--unlock`).
 from qr.config import experiments  # named experiments (conf/experiment/) as one Hydra override
 from qr.procs import remove_orphan_temporaries
-from qr.shipped import vehicle_file as find_vehicle
+from qr.shipped import shipped_vehicles, vehicle_file as find_vehicle
 
 remove_orphan_temporaries("results")
 
@@ -90,6 +90,16 @@ def vehicle_file(set_name):
     if v.endswith((".yaml", ".yml")):
         return str(DATA_FILE.parent / v) if not Path(v).is_absolute() else v
     return shipped_vehicle(v)
+
+
+for _name in SETS:  # a vehicle that is not there: one line at the start, not a missing input of every job
+    if not Path(vehicle_file(_name)).is_file():
+        _v = SETS[_name]["vehicle"]
+        raise WorkflowError(
+            f"{DATA_FILE}: sets.{_name}.vehicle: {_v} is " + (f"not a file ({vehicle_file(_name)})"
+            if str(_v).endswith((".yaml", ".yml")) else "neither a shipped vehicle nor a vehicle file (.yaml)")
+            + f"; fix: name a shipped vehicle ({', '.join(shipped_vehicles())}) or give your vehicle file's path "
+            "(relative to the data set file)")
 
 
 def flights_of(set_name, pattern):
