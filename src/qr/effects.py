@@ -373,6 +373,9 @@ def lookup(name: str) -> Effect:
 # vector (the spec: rotor_drag and rotor_drag_moment are one rotor drag's force and moment).
 TIED = (("rotor_drag", "rotor_drag_moment"),)
 
+# the terms that act at the rotor hubs (hub_z above the CG): their moment depends on the hubs' height
+HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")
+
 
 MAX_DELAY_S = 0.1  # longest plausible actuator delay (s); also bounds the diagnosis's exact-delay search
 

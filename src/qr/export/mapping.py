@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import plant_state as ps
 from .. import residual as rs
+from ..effects import HUB_EFFECTS
 from ..sim import plant as pl
 from ..vehicle import KNOWN, SPEED_IN_RPM
 
@@ -374,9 +375,6 @@ def ground_row(vehicle, key: str = "-", value: str = "-") -> Row:
                    "(ground_effect row)")
     return Row("ground_z", z, "-", "-", EXACT, "the floor's height in the log's world frame, used by no term of this "
                "vehicle (no ground_effect): nothing to map; put the simulator's floor there to match the log")
-
-
-HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")  # the terms that act at the hubs, hub_z above the CG
 
 
 def hub_row(vehicle, key: str, kept: tuple[str, ...] = ()) -> Row:

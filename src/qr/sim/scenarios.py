@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..effects import CATALOG
+from ..effects import CATALOG, HUB_EFFECTS
 
 # The catalog's example sizes (the one place): each effect at a size a real vehicle of the spec's synthetic
 # airframe (the AscTec Hummingbird, conf/vehicle/asctec_hummingbird.yaml) plausibly has, written as `qr synth
@@ -61,7 +61,6 @@ FAMILIES = {
 }
 # the effects that act at the rotor hubs (issue 36): drawn in scenarios of their own (:func:`hub_combinations`),
 # so that the 44 scenarios of :func:`combinations`, measured before they existed, stay the same flights
-HUB_EFFECTS = ("rotor_drag_moment", "translational_lift")
 DRAWN = tuple(e for e in CATALOG if e not in HUB_EFFECTS)  # what combinations() draws from
 
 # the same term, or the same to first order, never drawn together: thrust_gain = m/(m+dm) in force and
