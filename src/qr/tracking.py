@@ -19,6 +19,7 @@ import random
 import subprocess
 import time
 import uuid
+import warnings
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -264,8 +265,10 @@ class Run:
         import mlflow.data
         from mlflow.entities import DatasetInput, InputTag
 
-        ds = mlflow.data.from_pandas(table, source=str(Path(path).resolve()), name=Path(path).stem,
-                                     digest=data_digest([path])[:16])
+        with warnings.catch_warnings():  # MLflow registers its local-file source twice and warns that a path
+            warnings.filterwarnings("ignore", message="The specified dataset source can be interpreted in multiple ways")
+            ds = mlflow.data.from_pandas(table, source=str(Path(path).resolve()), name=Path(path).stem,
+                                         digest=data_digest([path])[:16])
         _retry(self.client.log_inputs, self.id,
                [DatasetInput(ds._to_mlflow_entity(), [InputTag("mlflow.data.context", context)])])
 
