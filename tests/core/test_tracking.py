@@ -141,3 +141,28 @@ def test_a_ctrl_c_that_another_thread_takes_waits_until_the_runs_status_is_writt
     helper.join(60)
     runs = {r.info.run_name: r for r in client.search_runs([tracking.experiment_id("unit")])}
     assert runs["interrupted at the end"].info.status == "FINISHED"
+
+
+def test_a_ctrl_c_while_a_sweep_opens_its_parent_run_ends_that_run_killed(tmp_path, monkeypatch):
+    """Ctrl-C while a sweep writes its parent run's id for the jobs (qr.atomic.write_text raises a signal it held
+    during the move when the move is done): the parent run ends KILLED there and then.  It was entered by
+    hand, and the close at exit was not yet arranged: the run stayed RUNNING (a CI run of
+    tests/workflow/test_faults.py, its Ctrl-C sent as a second sweep started)."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import atomic, tracking
+    from qr.stages.sweep_callback import PARENT_FILE, SweepCallback
+
+    real = atomic.write_text
+
+    def interrupted_as_it_ends(path, text):
+        real(path, text)
+        raise KeyboardInterrupt  # the held Ctrl-C, raised as write_text leaves its held block
+
+    monkeypatch.setattr(atomic, "write_text", interrupted_as_it_ends)
+    sweep = SweepCallback()
+    with pytest.raises(KeyboardInterrupt):
+        sweep._open(tmp_path, "interrupted sweep", {"sweep": "s"})
+    run_id = (tmp_path / PARENT_FILE).read_text().strip()
+    assert tracking._client().get_run(run_id).info.status == "KILLED"
+    sweep._close(RuntimeError("a job of the sweep failed"))  # what the exit hook would do: nothing left to close
+    assert tracking._client().get_run(run_id).info.status == "KILLED"

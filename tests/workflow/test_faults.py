@@ -30,7 +30,8 @@ def test_ctrl_c_ends_every_run_and_leaves_no_half_written_output(faulted):
     runs = faulted["after_sigint"]
     # every process got SIGINT and closed its run: nothing is left RUNNING, and the runs that were
     # open when Ctrl-C came (the sweep's parent among them) ended FAILED or KILLED
-    assert {r.info.status for r in runs.values()} <= DONE
+    left = {r.info.run_name: r.data.tags for r in runs.values() if r.info.status not in DONE}
+    assert not left, f"runs left open: {left}"
     open_parents = faulted["sigint_parents"] & faulted["sigint_open"]
     # (a sweep may finish in the moment between the look at the store and Ctrl-C: FINISHED before it)
     cut = {rid for rid in open_parents if runs[rid].info.end_time >= faulted["sigint_ms"]}

@@ -86,8 +86,30 @@ def wait_for(condition, proc: subprocess.Popen | None, what: str, poll_s: float 
 
 
 def kill_group(proc: subprocess.Popen, sig) -> int:
+    """Send ``sig`` to Snakemake's process group; return Snakemake's exit code once every process of
+    the group has ended (so that what the store shows then is final)."""
     os.killpg(proc.pid, sig)
-    return proc.wait(timeout=HANG_GUARD_S)
+    rc = proc.wait(timeout=HANG_GUARD_S)
+    deadline = time.monotonic() + HANG_GUARD_S
+    while group_members(proc.pid):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"processes of group {proc.pid} still run: {group_members(proc.pid)}")
+        time.sleep(0.1)
+    return rc
+
+
+def group_members(pgid: int) -> list[str]:
+    """Command lines of the live (not zombie) processes of process group ``pgid``."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+            cmd = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, IndexError):
+            continue  # gone meanwhile
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            out.append(f"{stat.parent.name}: {cmd[:200]}")
+    return out
 
 
 # ---- what a run left ---------------------------------------------------------------------------

@@ -40,7 +40,9 @@ class SweepCallback(Callback):
 
     def _open(self, out: Path, name: str, params: dict, tags: dict | None = None) -> None:
         """Open the parent run and write its id to ``out/PARENT_FILE``, where every job (in this process or a
-        worker) finds it.  If a job fails, Hydra never calls the end hook: the run is then closed FAILED at exit."""
+        worker) finds it.  If a job fails, Hydra never calls the end hook: the run is then closed FAILED at exit.
+        A Ctrl-C before that is arranged (while the file is written, say) closes the run KILLED at once: a run
+        entered by hand, not by ``with``, is otherwise left RUNNING."""
         import atexit
 
         from .. import tracking
@@ -48,9 +50,13 @@ class SweepCallback(Callback):
 
         tags = {"qr.sweep": name, "qr.parent": "true", **(tags or {})}
         self._cm = tracking.run("learn", name, config=params, tags=tags)
-        self._run = self._cm.__enter__()
-        write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
-        atexit.register(self._close, RuntimeError("a job of the sweep failed"))
+        try:
+            self._run = self._cm.__enter__()
+            write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
+            atexit.register(self._close, RuntimeError("a job of the sweep failed"))
+        except BaseException as e:
+            self._close(e)
+            raise
 
     def _close(self, exc) -> None:
         """End the parent run: finished, or with ``exc`` (failed, or killed by a signal) if the sweep raised."""
