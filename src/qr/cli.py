@@ -9,7 +9,7 @@ import warnings
 from pathlib import Path
 
 from . import __version__
-from .errors import EXIT_BAD_INPUT, QrInputError, QrInputWarning
+from .errors import EXIT_BAD_INPUT, QrInputError, QrInputWarning, error_line
 
 EXAMPLES = """\
 commands:
@@ -440,7 +440,7 @@ def _main(argv):
              "evaluate": _cmd_evaluate, "replay": _cmd_replay, "export": _cmd_export, "learn residual": _cmd_learn_residual,
              **dict.fromkeys(HYDRA_STAGES, _cmd_hydra_stage)}[args.command](args)
         except QrInputError as e:
-            print(f"qr: error: {e}", file=sys.stderr)
+            print(error_line(e), file=sys.stderr)
             return EXIT_BAD_INPUT
         except (KeyboardInterrupt, SystemError) as e:
             stop = interrupt_in(e)  # a SystemError may carry one (a compiled function was running)

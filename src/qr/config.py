@@ -213,14 +213,14 @@ def hydra_app(stage: str, task, precheck=None) -> None:
 
     import hydra
 
-    from .errors import EXIT_BAD_INPUT, QrInputError
+    from .errors import EXIT_BAD_INPUT, QrInputError, error_line
 
     @functools.wraps(task)
     def entry(cfg):
         try:
             return task(cfg)
         except QrInputError as e:
-            print(f"qr {stage}: error: {e}", file=sys.stderr)
+            print(error_line(e, f"qr {stage}"), file=sys.stderr)
             sys.exit(EXIT_BAD_INPUT)
 
     register_schemas()
@@ -232,13 +232,13 @@ def hydra_app(stage: str, task, precheck=None) -> None:
         except Exception as e:
             mine = _type_error(e, first) if "first" in locals() else None
             if mine is not None:
-                print(f"qr {stage}: error: {mine}", file=sys.stderr)
+                print(error_line(mine, f"qr {stage}"), file=sys.stderr)
                 sys.exit(EXIT_BAD_INPUT)
             cfg = None  # Hydra says what is wrong, as it parses the command line itself
         if cfg is not None and precheck is not None:
             try:
                 precheck(to_dict(cfg))
             except QrInputError as e:
-                print(f"qr {stage}: error: {e}", file=sys.stderr)
+                print(error_line(e, f"qr {stage}"), file=sys.stderr)
                 sys.exit(EXIT_BAD_INPUT)
     hydra.main(config_path=CONF_DIR, config_name="config", version_base="1.3")(entry)()

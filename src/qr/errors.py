@@ -24,6 +24,11 @@ class QrInputError(Exception):
         super().__init__(" ".join(f"{where}{problem}; fix: {fix}".splitlines()))
 
 
+def error_line(e, prog: str = "qr") -> str:
+    """The line a user sees for bad input ``e`` (a :class:`QrInputError`, or its text): the program, then the error."""
+    return f"{prog}: error: {e}"
+
+
 class QrInputWarning(UserWarning):
     """Legal but suspicious input (the message names the fix)."""
 
@@ -46,7 +51,7 @@ def job_log(path: str | Path) -> Iterator[IO[str]]:
             yield log
         except QrInputError as e:
             for out in (log, own):
-                print(f"qr: error: {e}", file=out, flush=True)
+                print(error_line(e), file=out, flush=True)
             sys.stderr = own
             raise SystemExit(EXIT_BAD_INPUT) from None
         except BaseException:

@@ -25,7 +25,7 @@ import pandas as pd
 import yaml
 
 from ..atomic import write_text
-from ..errors import EXIT_BAD_INPUT, QrInputError
+from ..errors import EXIT_BAD_INPUT, QrInputError, error_line
 
 BEGIN = "<!-- results:begin -->"
 END = "<!-- results:end -->"
@@ -552,7 +552,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         changed = update(Path(a.readme), Path(a.results), a.config_name, Path(a.ci_config))
     except QrInputError as e:
-        print(f"readme-results: error: {e}", file=sys.stderr)
+        print(error_line(e, "readme-results"), file=sys.stderr)
         return EXIT_BAD_INPUT
     info = parse_block(Path(a.readme).read_text())
     print(f"{a.readme}: results block {'rewritten' if changed else 'unchanged'} (config {info['config']}, "
