@@ -40,8 +40,7 @@ class SweepCallback(Callback):
 
     def _open(self, out: Path, name: str, params: dict, tags: dict | None = None) -> None:
         """Open the parent run and write its id to ``out/PARENT_FILE``, where every job (in this process or a
-        worker) finds it.  If a job fails or the sweep is interrupted, Hydra never calls the end hook: the run is then
-        closed at exit (:meth:`_close_at_exit`).
+        worker) finds it.  If a job fails, Hydra never calls the end hook: the run is then closed FAILED at exit.
         A Ctrl-C before that is arranged (while the file is written, say) closes the run KILLED at once: a run
         entered by hand, not by ``with``, is otherwise left RUNNING."""
         import atexit
@@ -54,20 +53,10 @@ class SweepCallback(Callback):
         try:
             self._run = self._cm.__enter__()
             write_text(out / PARENT_FILE, self._run.id + "\n")  # (a reader never finds it empty)
-            atexit.register(self._close_at_exit)
+            atexit.register(self._close, RuntimeError("a job of the sweep failed"))
         except BaseException as e:
             self._close(e)
             raise
-
-    def _close_at_exit(self) -> None:
-        """Hydra never called the end hook: the run ends KILLED if the process ends on an interrupt (Ctrl-C, SIGTERM:
-        the exception Python has just printed), else FAILED (a job failed)."""
-        import sys
-
-        from ..procs import interrupt_in
-
-        stop = interrupt_in(getattr(sys, "last_value", None))
-        self._close(stop if stop is not None else RuntimeError("a job of the sweep failed"))
 
     def _close(self, exc) -> None:
         """End the parent run: finished, or with ``exc`` (failed, or killed by a signal) if the sweep raised."""
