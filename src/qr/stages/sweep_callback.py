@@ -40,8 +40,9 @@ class SweepCallback(Callback):
 
     def _open(self, out: Path, name: str, params: dict, tags: dict | None = None) -> None:
         """Open the parent run and write its id to ``out/PARENT_FILE``, where every job (in this process or a
-        worker) finds it.  If a job fails, Hydra never calls the end hook: the run is then closed FAILED at exit.
-        A Ctrl-C before that is arranged (while the file is written, say) closes the run KILLED at once: a run
+        worker) finds it.  If a job fails or the sweep is interrupted, Hydra never calls the end hook: the run is then
+        closed FAILED at exit (an interrupt too: ``qr`` ends on it quietly, with exit status 130, and the hook
+        cannot tell).  A Ctrl-C before that is arranged (while the file is written, say) closes the run KILLED at once: a run
         entered by hand, not by ``with``, is otherwise left RUNNING."""
         import atexit
 
