@@ -114,3 +114,36 @@ def symmetric_eigen(A, w, V, sweeps=100, tol=1e-15):
             for k in range(n):
                 V[k, j - 1], V[k, j] = V[k, j], V[k, j - 1]
             j -= 1
+
+
+@nb.njit(cache=True)
+def eigen_inverse(V, w, out):
+    """``out = V diag(1/w) Vᵀ`` over the eigenpairs with ``w > 0`` (a zero in ``w``: the direction left out,
+    the pseudo-inverse's rule).  Loops in a fixed order: the same bits on any BLAS."""
+    n = V.shape[0]
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                if w[k] > 0.0:
+                    s += V[i, k] * V[j, k] / w[k]
+            out[i, j] = s
+
+
+@nb.njit(cache=True)
+def congruence(M, B, out):
+    """``out = M B Mᵀ`` (square, fixed summation order)."""
+    n = M.shape[0]
+    T = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += M[i, k] * B[k, j]
+            T[i, j] = s
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += T[i, k] * M[j, k]
+            out[i, j] = s

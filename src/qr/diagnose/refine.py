@@ -171,7 +171,8 @@ class Refinement:
     balance_ref: np.ndarray | None = None  # the one-step model's force and torque balance rms per axis
     balance: np.ndarray | None = None  # the written model's balance residual per axis over the one-step model's
     # the sandwich covariance (parameter units) of the parameters off their bounds at the rollout's optimum:
-    # (their indices into ``parameters``, the matrix); the Monte Carlo band's draws (qr.bands)
+    # (their indices into ``parameters``, the matrix), over the directions the data fix (_band_covariance); the Monte
+    # Carlo band's draws (qr.bands)
     covariance: tuple | None = None
     band_scale: Scale | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
 
@@ -760,7 +761,7 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     blocks_test = _blocks(held_out, vehicle, effects, specs, written, H) if held_out else {}
     ablation = _ablation(train, held_out, stack, vehicle, specs, theta0, written, H)
     diverged = fit.normal(written, [])[5]
-    covariance = fit.sandwich(cov_wanted)
+    covariance = _band_covariance(fit, specs, cov_wanted)
     band_scale = _band_scale(held_out, vehicle, specs, written, covariance, H, seed)
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
@@ -965,29 +966,20 @@ def _unconstrained(fit: "_Fit", specs: list[_Spec], cov) -> tuple[list[Direction
     In units of each parameter's physical range, the Gauss–Newton Hessian's eigen-directions v with their
     sandwich standard error ``√(vᵀ B v) / λ``: unconstrained where that exceeds ``UNFIXED_SE`` or λ is
     numerically zero.  The eigen-decomposition is compiled (fixed order: the same on any BLAS)."""
-    from ..linalg_compiled import symmetric_eigen
-
-    idx, Hm, B = cov
+    idx = cov[0]
     if idx.size < 1:
         return [], None
-    R = _ranges(specs)[idx] / fit.scale[idx]  # scaled parameter z → range units: z_r = z / R
-    Hr = Hm * R[:, None] * R[None, :]
-    Br = B * R[:, None] * R[None, :]
-    w, V = np.empty(idx.size), np.empty((idx.size, idx.size))
-    symmetric_eigen(np.ascontiguousarray(Hr), w, V)
-    top = max(float(w.max()), 1e-300)
+    R, w, V, se, top = _range_eigen(fit, specs, cov)
     labels = [_label(specs[i]) for i in idx]
     out, cols = [], []
     for k in range(idx.size):
         v = V[:, k]
-        null = w[k] <= UNFIXED_CURVATURE * top
-        se = None if null else math.sqrt(max(float(v @ Br @ v), 0.0)) / w[k]
-        if not null and se <= UNFIXED_SE:
+        if se[k] <= UNFIXED_SE:
             continue
         v = v * (1.0 if v[np.argmax(np.abs(v))] > 0 else -1.0)
         order = np.argsort(-np.abs(v), kind="stable")
         out.append(Direction(tuple((labels[j], float(v[j])) for j in order if abs(v[j]) >= 0.1),
-                             float(max(w[k], 0.0) / top), se))
+                             float(max(w[k], 0.0) / top), None if np.isinf(se[k]) else float(se[k])))
         full = np.zeros(len(specs))
         full[idx] = v / R  # in the scaled parameters
         cols.append(full)
@@ -995,6 +987,50 @@ def _unconstrained(fit: "_Fit", specs: list[_Spec], cov) -> tuple[list[Direction
         return out, None
     Vu = np.array(cols).T
     return out, PIN_WEIGHT * top * (Vu @ Vu.T)
+
+
+def _range_eigen(fit: "_Fit", specs: list[_Spec], cov) -> tuple:
+    """``(R, w, V, se, top)`` of :meth:`_Fit.covariance`'s ``(idx, H, B)``: in units of each parameter's
+    physical range (scaled parameter z = R z_r), the Hessian's eigenvalues ``w`` and vectors ``V`` (compiled,
+    fixed order: the same on any BLAS), each direction's sandwich standard error ``√(vᵀ B v) / λ`` (∞ where
+    λ is numerically zero, ``UNFIXED_CURVATURE`` of the largest) and the largest eigenvalue."""
+    from ..linalg_compiled import symmetric_eigen
+
+    idx, Hm, B = cov
+    R = _ranges(specs)[idx] / fit.scale[idx]
+    Hr = Hm * R[:, None] * R[None, :]
+    Br = B * R[:, None] * R[None, :]
+    w, V = np.empty(idx.size), np.empty((idx.size, idx.size))
+    symmetric_eigen(np.ascontiguousarray(Hr), w, V)
+    top = max(float(w.max()), 1e-300)
+    se = np.array([math.inf if w[k] <= UNFIXED_CURVATURE * top
+                   else math.sqrt(max(float(V[:, k] @ Br @ V[:, k]), 0.0)) / w[k] for k in range(idx.size)])
+    return R, w, V, se, top
+
+
+def _band_covariance(fit: "_Fit", specs: list[_Spec], cov) -> tuple:
+    """``(idx, Σ)``: the sandwich covariance the band draws from (:meth:`_Fit.sandwich`) over the directions
+    the data fix (those :func:`_unconstrained` reports are left out: the written model holds them at their
+    one-step values; along an exact confound such as C_T against four equal per-rotor gains the variance is
+    the inverse's round-off, and draws along a direction wider than the physical ranges, clipped to each
+    parameter's bounds one by one, fly vehicles the data exclude, the band's 90 % radius then set by a few
+    diverging draws).  Without such a direction: :meth:`_Fit.sandwich` itself."""
+    from ..linalg_compiled import congruence, eigen_inverse
+
+    idx, Hm, B = cov
+    if idx.size < 1:
+        return fit.sandwich(cov)
+    R, w, V, se, _ = _range_eigen(fit, specs, cov)
+    keep = se <= UNFIXED_SE
+    if keep.all():
+        return fit.sandwich(cov)
+    # A⁺ B A⁺ over the directions kept (range units), then back to parameter units: θ = scale · R · z_r
+    Br = np.ascontiguousarray(B * R[:, None] * R[None, :])
+    inv, S = np.empty_like(Br), np.empty_like(Br)
+    eigen_inverse(V, np.where(keep, w, 0.0), inv)
+    congruence(inv, Br, S)
+    u = fit.scale[idx] * R
+    return idx, 0.5 * (S + S.T) * np.outer(u, u)
 
 
 def _project_out(theta: np.ndarray, theta0: np.ndarray, pin: np.ndarray, scale: np.ndarray) -> np.ndarray:
