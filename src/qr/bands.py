@@ -137,11 +137,13 @@ def spread(pieces: list[Windows], Ps: np.ndarray, H: int, first_piece: int = 0) 
 # ---- scale and coverage ------------------------------------------------------------------------------
 
 def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> Scale:
-    """One scale per quantity: the ``level`` quantile over the samples of error / r₉₀, so that the scaled 90 %
-    band covers ``level`` of them (None where no sample has both, or the radius is 0 too often)."""
+    """One scale per quantity: the ``level`` quantile over the samples of error / r_level (r₅₀ for 0.5, else
+    r₉₀), so that the scaled band covers ``level`` of them (None where no sample has both, or the radius is 0
+    too often)."""
     out = {}
+    radii = sp.r50 if level == 0.5 else sp.r90
     for k, q in enumerate(QUANTITIES):
-        e, r = sp.err[:, k], sp.r90[:, k]
+        e, r = sp.err[:, k], radii[:, k]
         ok = np.isfinite(e) & np.isfinite(r)
         if not ok.any():
             out[q] = None
@@ -155,24 +157,40 @@ def calibrate(sp: Spread, level: float = CALIBRATE_LEVEL) -> Scale:
     return out
 
 
-def coverage(sp: Spread, scale: Scale | None) -> dict:
-    """Per quantity: the share of samples whose truth lies inside the 50 % and 90 % bands (radii × ``scale``,
-    1 where none), the samples, the median scaled radii; and the mean of the quantities' shares."""
+def calibrate_levels(sp: Spread) -> tuple[Scale, Scale]:
+    """The scales of the 90 % and of the 50 % band (:func:`calibrate` at each level): the draws' spread need
+    not have the errors' shape (a few diverging draws widen r₉₀ far more than r₅₀), so one scale cannot make
+    both bands cover their share."""
+    return calibrate(sp, CALIBRATE_LEVEL), calibrate(sp, 0.5)
+
+
+def coverage(sp: Spread, scale: Scale | None, scale50: Scale | None = None) -> dict:
+    """Per quantity: the share of samples whose truth lies inside the 50 % and 90 % bands (radii × ``scale``, the
+    50 % radii × ``scale50`` where it has the quantity; 1 where none), the samples, the median scaled radii; and
+    the mean of the quantities' shares."""
     by = {}
     for k, q in enumerate(QUANTITIES):
-        s = (scale or {}).get(q)
-        s = 1.0 if s is None else float(s)
+        s, s50 = level_scales(scale, scale50, q)
         e = sp.err[:, k]
         ok = np.isfinite(e) & np.isfinite(sp.r90[:, k])
         n = int(ok.sum())
-        row = {"samples": n, "scale": s}
-        for lev, r in ((50, sp.r50[:, k]), (90, sp.r90[:, k])):
-            row[f"coverage{lev}"] = float(np.mean(e[ok] <= s * r[ok])) if n else None
-            row[f"median_radius{lev}"] = float(np.median(s * r[ok])) if n else None
+        row = {"samples": n, "scale": s, "scale50": s50}
+        for lev, r, f in ((50, sp.r50[:, k], s50), (90, sp.r90[:, k], s)):
+            row[f"coverage{lev}"] = float(np.mean(e[ok] <= f * r[ok])) if n else None
+            row[f"median_radius{lev}"] = float(np.median(f * r[ok])) if n else None
         by[q] = row
     mean = lambda key: (float(np.mean([by[q][key] for q in QUANTITIES if by[q][key] is not None]))  # noqa: E731
                         if any(by[q][key] is not None for q in QUANTITIES) else None)
     return {"coverage90": mean("coverage90"), "coverage50": mean("coverage50"), "by_quantity": by}
+
+
+def level_scales(scale: Scale | None, scale50: Scale | None, q: str) -> tuple[float, float]:
+    """``(s₉₀, s₅₀)`` of quantity ``q``: 1 where unscaled; the 50 % band's the 90 % one's where it has none (a
+    source written before the levels had scales of their own)."""
+    s = (scale or {}).get(q)
+    s = 1.0 if s is None else float(s)
+    s50 = (scale50 or {}).get(q)
+    return s, s if s50 is None else float(s50)
 
 
 # ---- parameter draws (deterministic: compiled Cholesky and products) ---------------------------------
@@ -283,6 +301,7 @@ class Source:
     covariance: np.ndarray | None = None
     bounds: np.ndarray | None = None
     members: tuple = ()
+    scale50: Scale | None = None  # the 50 % band's scale (None: ``scale``)
 
     def plants(self, vehicle, draws: int, seed: int) -> np.ndarray:
         """The plants (1 + draws, n): the vehicle as given, then each draw (each member of an ensemble)."""
@@ -312,7 +331,8 @@ def parameter_block(refine_block: dict) -> dict | None:
                "shared_with": ps[i].get("shared_with", []), "written": ps[i]["written"],
                "bounds": ps[i]["bounds"]} for i in cov["parameters"]]
     return {"schema": SCHEMA, "kind": "parameters", "parameters": params, "covariance": cov["matrix"],
-            "scale": cov.get("band_scale"), "calibrated_on": cov.get("calibrated_on", "")}
+            "scale": cov.get("band_scale"), "scale50": cov.get("band_scale50"),
+            "calibrated_on": cov.get("calibrated_on", "")}
 
 
 def read_source(doc: dict, file: str, base: Path) -> Source:
@@ -323,11 +343,12 @@ def read_source(doc: dict, file: str, base: Path) -> Source:
         from .residual import absolute, load
 
         members = tuple(load(absolute(m["residual"], base), Path(base) / "x.yaml") for m in doc["members"])
-        return Source("ensemble", file, doc.get("scale"), doc.get("calibrated_on", ""), members=members)
+        return Source("ensemble", file, doc.get("scale"), doc.get("calibrated_on", ""), members=members,
+                      scale50=doc.get("scale50"))
     params = tuple(doc["parameters"])
     return Source("parameters", file, doc.get("scale"), doc.get("calibrated_on", ""), params,
                   np.array([p["written"] for p in params], float), np.array(doc["covariance"], float),
-                  np.array([p["bounds"] for p in params], float))
+                  np.array([p["bounds"] for p in params], float), scale50=doc.get("scale50"))
 
 
 def source_of(vehicle_file, vehicle) -> tuple[Source | None, str]:
@@ -425,13 +446,13 @@ class Bands:
         ``by_quantity``) and per flight."""
         out = {}
         for key, src in self.sources.items():
-            per = {f: coverage(sp, src.scale) for f, sp in self.spreads[key].items()}
-            pooled = coverage(Spread.join(list(self.spreads[key].values())), src.scale)
+            per = {f: coverage(sp, src.scale, src.scale50) for f, sp in self.spreads[key].items()}
+            pooled = coverage(Spread.join(list(self.spreads[key].values())), src.scale, src.scale50)
             out[key] = {"kind": src.kind, "source": src.file,
                         "draws": len(src.members) if src.kind == "ensemble" else self.draws,
                         "seed": None if src.kind == "ensemble" else self.seed,
                         "parameters": [p.get("label", p["effect"]) for p in src.params] if src.params else None,
-                        "scale": src.scale, "calibrated_on": src.calibrated_on, "horizon": H,
+                        "scale": src.scale, "scale50": src.scale50, "calibrated_on": src.calibrated_on, "horizon": H,
                         "levels": list(LEVELS), **pooled,
                         "per_flight": {f: {k: c[k] for k in ("coverage90", "coverage50")} for f, c in per.items()}}
         return out, dict(self.missing)

@@ -169,24 +169,27 @@ def _done(r, k: int, members: int, training: list[str], log) -> Member:
     return r
 
 
-def calibrated(physical, centre, members: list[Member], parts: list, H: int) -> tuple[Scale | None, str]:
-    """The band's scale per quantity on the validation windows (:func:`qr.bands.calibrate`) and where."""
+def calibrated(physical, centre, members: list[Member], parts: list,
+               H: int) -> tuple[Scale | None, Scale | None, str]:
+    """The band's scales per quantity of its 90 % and 50 % levels on the validation windows
+    (:func:`qr.bands.calibrate_levels`) and where."""
     from . import bands
     from .sim.plant import true_params
 
     val = [pc.windows.scored_at(pc.val) for pc in parts if len(pc.val)]
     if len(members) < 2 or not val:
-        return None, ""
+        return None, None, ""
     rows = [true_params(centre, list(centre.effects))]
     for m in members:
         v = physical.with_changes()
         v.residual = m.residual
         rows.append(true_params(v, list(v.effects)))
     sp = bands.spread(val, np.array(rows), H)
-    return bands.calibrate(sp), f"the {len(val)} validation piece(s) of qr learn residual ({len(sp.err)} windows)"
+    return (*bands.calibrate_levels(sp),
+            f"the {len(val)} validation piece(s) of qr learn residual ({len(sp.err)} windows)")
 
 
-def write(tmp, members: list[Member], scale, where: str, note: str, horizon: int) -> None:
+def write(tmp, members: list[Member], scale, scale50, where: str, note: str, horizon: int) -> None:
     """``members/`` and ``hybrid_vehicle.bands.json`` into the folder ``tmp`` (being written atomically)."""
     from .bands import SCHEMA
 
@@ -198,7 +201,7 @@ def write(tmp, members: list[Member], scale, where: str, note: str, horizon: int
         docs.append({"residual": rs.block(m.residual, name, f"{note}; ensemble member {k}"), "seed": m.seed,
                      "flights": m.flights, "best_epoch": m.best_epoch, "epochs_run": m.epochs_run})
     write_json(tmp / BANDS_FILE, {"schema": SCHEMA, "kind": "ensemble", "vehicle": "hybrid_vehicle.yaml",
-                                  "members": docs, "scale": scale, "horizon": horizon, "calibrated_on": where,
+                                  "members": docs, "scale": scale, "scale50": scale50, "horizon": horizon, "calibrated_on": where,
                                   "start": START,
                                   "resampling": "by flight: each member draws as many training flights as there "
                                                 "are, with replacement; a flight drawn twice counts twice"})

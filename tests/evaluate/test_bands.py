@@ -129,6 +129,15 @@ def test_a_too_narrow_band_is_scaled_on_validation_flights_and_then_covers(known
     scaled = bands.coverage(test, scale)
     for q in ("p", "R"):
         assert 0.8 <= scaled["by_quantity"][q]["coverage90"] <= 0.97
+    # the 50 % band's own scale: the median |δ_true| over the draws' median |δ|; it then covers about half
+    scale90, scale50 = bands.calibrate_levels(val)
+    assert scale90 == scale
+    expect50 = np.quantile(np.repeat(np.abs(val_deltas), 4), 0.5) / _quantile(d, 0.5)
+    assert scale50["p"] == pytest.approx(expect50, rel=0.05) and scale50["R"] == pytest.approx(expect50, rel=0.05)
+    both = bands.coverage(test, scale, scale50)
+    for q in ("p", "R"):
+        assert 0.4 <= both["by_quantity"][q]["coverage50"] <= 0.6
+        assert both["by_quantity"][q]["coverage90"] == scaled["by_quantity"][q]["coverage90"]
 
 
 def test_draws_have_the_covariance_asked_and_stay_within_bounds():
@@ -243,3 +252,29 @@ def test_learn_residual_members_leave_the_hybrid_unchanged_and_evaluate_draws_th
     assert "vehicle.yaml" in ev["bands_none"]
     report = (tmp_path / "ev" / "report.md").read_text()
     assert "uncertainty bands" in report and (tmp_path / "ev" / "figures" / "bands.png").exists()
+
+
+def test_each_band_gets_its_own_scale_when_the_spread_is_heavier_tailed_than_the_errors():
+    """Draws that now and then diverge make r₉₀ ten times r₅₀ where the errors' own 90 % quantile is 2.4 times
+    their median (|N(0, 1)|: 1.645 / 0.674): scaled for the 90 % band alone, the 50 % band covers a small
+    share; with its own scale (the errors' median over r₅₀, by hand) it covers half, on other samples too."""
+    from qr import bands
+
+    rng = np.random.default_rng(4)
+
+    def sample(n):
+        err = np.abs(rng.normal(0.0, 1.0, (n, 4)))
+        return bands.Spread(err, np.full((n, 4), 0.1), np.full((n, 4), 1.0), np.arange(n) * 0.01, np.zeros(n, int))
+
+    val, test = sample(4000), sample(4000)
+    s90, s50 = bands.calibrate_levels(val)
+    for q in ("p", "v", "R", "w"):
+        k = "pvRw".index(q)
+        assert s90[q] == pytest.approx(np.quantile(val.err[:, k], 0.9) / 1.0)
+        assert s50[q] == pytest.approx(np.quantile(val.err[:, k], 0.5) / 0.1)
+    one = bands.coverage(test, s90)["by_quantity"]
+    own = bands.coverage(test, s90, s50)["by_quantity"]
+    for q in ("p", "v", "R", "w"):
+        assert one[q]["coverage50"] < 0.15  # 0.1 × 1.645: P(|z| < 0.16) ≈ 0.13
+        assert own[q]["coverage50"] == pytest.approx(0.5, abs=0.03)
+        assert own[q]["coverage90"] == one[q]["coverage90"] == pytest.approx(0.9, abs=0.02)

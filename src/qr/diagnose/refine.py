@@ -175,6 +175,7 @@ class Refinement:
     # Carlo band's draws (qr.bands)
     covariance: tuple | None = None
     band_scale: Scale | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
+    band_scale50: Scale | None = None  # the 50 % band's
 
     def properties(self) -> dict:
         """The vehicle keys refined (only those that moved): ``rotor_inertia``, ``rotor_torque_gains``,
@@ -257,7 +258,7 @@ class Refinement:
                 "matrix": [[float(x) for x in row] for row in self.covariance[1]],
                 "units": "each parameter's own (as parameters[].written)",
                 "at": "the rollout's optimum within the plausible bounds (rollout), parameters off their bounds",
-                "band_scale": self.band_scale,
+                "band_scale": self.band_scale, "band_scale50": self.band_scale50,
                 "calibrated_on": "the diagnosis's held-out windows (qr.bands: the 90 % band covers 90 % there)"}}
                if self.covariance is not None and len(self.covariance[0]) else {}),
         }
@@ -762,11 +763,12 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     ablation = _ablation(train, held_out, stack, vehicle, specs, theta0, written, H)
     diverged = fit.normal(written, [])[5]
     covariance = _band_covariance(fit, specs, cov_wanted)
-    band_scale = _band_scale(held_out, vehicle, specs, written, covariance, H, seed)
+    band_scale, band_scale50 = _band_scale(held_out, vehicle, specs, written, covariance, H, seed)
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
                       time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission,
-                      None if limits is None else limits[1], balance_after, covariance, band_scale)
+                      None if limits is None else limits[1], balance_after, covariance, band_scale,
+                      band_scale50)
 
 
 def _parameters(specs: list[_Spec], wanted, se, free) -> list[Parameter]:
@@ -798,12 +800,13 @@ def _beyond_rule(fit, held_out: list[Windows], settings: RefineSettings, candida
 
 
 def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, covariance, H: int,
-                seed: int) -> dict | None:
-    """The Monte Carlo band's scale per quantity (:func:`qr.bands.calibrate`) on the held-out windows: the
-    written model and ``BAND_DRAWS`` draws of its parameters from the covariance, each within its bounds."""
+                seed: int) -> tuple[dict | None, dict | None]:
+    """The Monte Carlo band's scales per quantity of its 90 % and 50 % levels (:func:`qr.bands.calibrate_levels`)
+    on the held-out windows: the written model and ``BAND_DRAWS`` draws of its parameters from the covariance,
+    each within its bounds."""
     idx, cov = covariance
     if not held_out or not len(idx):
-        return None
+        return None, None
     from .. import bands
 
     bounds = np.array([[specs[i].lo, specs[i].hi] for i in idx])
@@ -813,7 +816,7 @@ def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, c
         full = written.copy()
         full[idx] = th
         Ps.append(_plant(vehicle, specs, full))
-    return bands.calibrate(bands.spread(held_out, np.array(Ps), H))
+    return bands.calibrate_levels(bands.spread(held_out, np.array(Ps), H))
 
 
 BAND_DRAWS = BandsConfig().draws  # evaluate.bands.draws' default: the band calibrated is the band evaluated

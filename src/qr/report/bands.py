@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..bands import level_scales
 from ..rollout import QUANTITIES
 
 NAMES = {"p": "position", "v": "velocity", "R": "attitude", "w": "body rate"}
@@ -40,10 +41,10 @@ def bands_section(doc: dict, figure: str | None) -> list[str]:
         return L
     L += [f"Around each banded model's prediction, the 50 % and 90 % bands at h = {H}: balls whose radius is the "
           "spread of an ensemble of plants flown on the same windows (the 50 % and 90 % quantiles of their distance "
-          "from the model's prediction) times one scale per quantity, chosen on the training side's validation data "
-          "so that the 90 % band covers 90 % there (never on these flights). Coverage: the share of scored samples "
+          "from the model's prediction) times a scale per quantity and level, chosen on the training side's validation "
+          "data so that each band covers its share there (never on these flights). Coverage: the share of scored samples "
           f"at h = {H} whose truth lies inside (nominally 50 % and 90 %).", "",
-          "| model | band from | scale p / v / R / ω | 90 % band covers p / v / R / ω | 50 % band covers p / v / R / ω "
+          "| model | band from | 90 % scale p / v / R / ω | 90 % band covers p / v / R / ω | 50 % band covers p / v / R / ω "
           "| median 90 % radius p (m) / R (rad) |", "|---|---|---|---|---|---|"]
     for key, b in bands.items():
         by = b["by_quantity"]
@@ -91,17 +92,17 @@ def bands_figure(doc: dict, bands, path: Path) -> None:
                                 squeeze=False)
     for r, key in enumerate(keys):
         sp = bands.spread_of(key, flight)
-        scale = doc["bands"][key]["scale"] or {}
+        block = doc["bands"][key]
         for c, q in enumerate(("p", "R")):
             ax = axs[r][c]
             k = QUANTITIES.index(q)
-            s = scale.get(q) or 1.0
+            s, s50 = level_scales(block["scale"], block.get("scale50"), q)
             t = sp.t + H * dt
             for piece in np.unique(sp.piece):  # no line across a gap between pieces
                 m = sp.piece == piece
                 ax.fill_between(t[m], 0, s * sp.r90[m, k], color="C0", alpha=0.25, lw=0,
                                 label="90 % band" if piece == sp.piece[0] else None)
-                ax.fill_between(t[m], 0, s * sp.r50[m, k], color="C0", alpha=0.5, lw=0,
+                ax.fill_between(t[m], 0, s50 * sp.r50[m, k], color="C0", alpha=0.5, lw=0,
                                 label="50 % band" if piece == sp.piece[0] else None)
                 ax.plot(t[m], sp.err[m, k], color="k", lw=0.7, label="error" if piece == sp.piece[0] else None)
             ax.set_ylim(bottom=0)

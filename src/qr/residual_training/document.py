@@ -49,6 +49,7 @@ def document(r: ResidualTraining) -> dict:
         "residual_size": r.size.record(),
         **({"ensemble": {
             "members": rcfg.members, "file": BANDS_FILE, "scale": r.ensemble.scale,
+            "scale50": r.ensemble.scale50,
             "scale_horizon": r.settings.evaluate.horizon, "calibrated_on": r.ensemble.calibrated_on,
             "wall_s": r.ensemble.wall_s, "start": START, "member_epochs": rcfg.member_epochs,
             "patience": rcfg.patience, "jobs": r.ensemble.jobs,

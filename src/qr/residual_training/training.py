@@ -103,6 +103,7 @@ class Ensemble:
 
     members: tuple[Member, ...]
     scale: Scale | None  # the band's scale per signal (qr.bands.calibrate), None without validation windows
+    scale50: Scale | None  # the 50 % band's
     calibrated_on: str
     wall_s: float
     jobs: int  # processes that trained them
@@ -223,8 +224,8 @@ def _ensemble(settings: Settings, physical: Vehicle, hybrid: Vehicle, parts: lis
     t1 = time.perf_counter()
     members, jobs = ensemble.train_members(rcfg, hybrid, parts, training, settings.seed, rcfg.members, say,
                                            trained.wall_s / max(len(trained.epochs), 1))
-    scale, where = ensemble.calibrated(physical, hybrid, members, parts, settings.evaluate.horizon)
-    return Ensemble(tuple(members), scale, where, time.perf_counter() - t1, jobs)
+    scale, scale50, where = ensemble.calibrated(physical, hybrid, members, parts, settings.evaluate.horizon)
+    return Ensemble(tuple(members), scale, scale50, where, time.perf_counter() - t1, jobs)
 
 
 def training_size(res: Residual, parts: list, H: int, vehicle: Vehicle) -> Size:

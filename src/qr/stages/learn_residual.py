@@ -69,8 +69,8 @@ def _write(out, force: bool, r, doc: dict) -> None:
         save_vehicle(r.hybrid_file(tmp / "residual.npz"), tmp / "hybrid_vehicle.yaml", header=r.header)
         load_vehicle(tmp / "hybrid_vehicle.yaml")  # what was written loads (weights, shapes, scaling)
         if r.ensemble is not None:
-            ensemble.write(tmp, list(r.ensemble.members), r.ensemble.scale, r.ensemble.calibrated_on, r.note,
-                           r.settings.evaluate.horizon)
+            e = r.ensemble
+            ensemble.write(tmp, list(e.members), e.scale, e.scale50, e.calibrated_on, r.note, r.settings.evaluate.horizon)
         (tmp / "figures").mkdir()
         curve_figure(r, tmp / "figures" / "training_curve.png")
         write_text(tmp / "report.md", report(r))
