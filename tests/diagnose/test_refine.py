@@ -260,6 +260,7 @@ def test_the_covariance_reaches_the_result_and_its_band_flies_the_written_vehicl
     block = r.to_json()["parameter_covariance"]
     assert block["parameters"] == [int(i) for i in idx] and np.array(block["matrix"]) == pytest.approx(cov)
     assert all(x is not None and x > 0 for x in block["band_scale"].values())
+    assert all(x is not None and x > 0 for x in block["band_scale50"].values())
     # the written vehicle, as qr diagnose writes it, and one draw of its parameters
     written = v.with_changes(**r.properties(), effects=[*v.effects, *r.effects([])])
     src = bands.read_source(bands.parameter_block(r.to_json()), "diagnosis.json", Path("."))
