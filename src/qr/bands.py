@@ -206,9 +206,16 @@ def _correlate(Z, L, out):
             out[d, a] = s
 
 
+DRAW_BATCHES = 200  # batches of candidates tried before the draws still missing are clipped instead
+
+
 def draw_parameters(written: np.ndarray, cov: np.ndarray, bounds: np.ndarray, draws: int, seed: int) -> np.ndarray:
-    """``draws`` parameter vectors (draws, n): ``written`` plus N(0, ``cov``), each clipped to its ``bounds``
-    (n, 2) (a draw beyond a physical bound would fly a vehicle that cannot exist)."""
+    """``draws`` parameter vectors (draws, n): ``written`` plus N(0, ``cov``) restricted to the box ``bounds``
+    (n, 2) (a draw beyond a physical bound would fly a vehicle that cannot exist).  A candidate outside is
+    drawn again, not clipped: clipping one coordinate breaks the correlations that keep a draw's terms
+    consistent (a thrust gain against a vertical force, say), and flies vehicles the covariance excludes.
+    Candidates come in batches of ``draws`` from one seeded stream, kept in order (without a candidate
+    outside, the first batch: the plain draws); after ``DRAW_BATCHES`` batches the rest are clipped."""
     from .linalg_compiled import cholesky
 
     written = np.asarray(written, float)
@@ -224,11 +231,20 @@ def draw_parameters(written: np.ndarray, cov: np.ndarray, bounds: np.ndarray, dr
     else:
         L = np.diag(np.sqrt(np.maximum(np.diag(cov), 0.0)))
     L = np.ascontiguousarray(np.tril(L))
-    Z = np.random.default_rng(seed).standard_normal((draws, n))
-    out = np.empty((draws, n))
-    _correlate(np.ascontiguousarray(Z), L, out)
     b = np.asarray(bounds, float).reshape(n, 2)
-    return np.clip(written[None, :] + out, b[:, 0], b[:, 1])
+    rng = np.random.default_rng(seed)
+    kept, have, X = [], 0, np.empty((draws, n))
+    for _ in range(DRAW_BATCHES):
+        _correlate(np.ascontiguousarray(rng.standard_normal((draws, n))), L, X)
+        X += written[None, :]
+        ok = X[np.all((X >= b[:, 0]) & (X <= b[:, 1]), axis=1)][:draws - have]
+        kept.append(ok.copy())
+        have += len(ok)
+        if have == draws:
+            break
+    else:
+        kept.append(np.clip(X[:draws - have], b[:, 0], b[:, 1]))
+    return np.concatenate(kept) if kept else np.empty((0, n))
 
 
 def perturbed(vehicle, params: list[dict], values) -> tuple:

@@ -131,19 +131,19 @@ def eigen_inverse(V, w, out):
 
 
 @nb.njit(cache=True)
-def congruence(M, B, out):
-    """``out = M B Mᵀ`` (square, fixed summation order)."""
-    n = M.shape[0]
-    T = np.empty((n, n))
+def product_nt(A, B, out):
+    """``out = A Bᵀ`` (square, fixed summation order)."""
+    n = A.shape[0]
     for i in range(n):
         for j in range(n):
             s = 0.0
             for k in range(n):
-                s += M[i, k] * B[k, j]
-            T[i, j] = s
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += T[i, k] * M[j, k]
+                s += A[i, k] * B[j, k]
             out[i, j] = s
+
+
+def congruence(M, B, out):
+    """``out = M B Mᵀ`` (square, fixed summation order: the same bits on any BLAS)."""
+    T = np.empty_like(out)
+    product_nt(M, np.ascontiguousarray(B.T), T)
+    product_nt(T, M, out)

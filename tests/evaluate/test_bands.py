@@ -146,8 +146,27 @@ def test_draws_have_the_covariance_asked_and_stay_within_bounds():
     cov = np.array([[4.0, 1.2], [1.2, 1.0]]) * 1e-4
     x = draw_parameters(np.array([0.0, 1.0]), cov, np.array([[-1, 1], [0.0, 2.0]]), 20000, seed=1)
     assert np.cov(x.T) == pytest.approx(cov, rel=0.05)
+    # N(0, 1) restricted to ±a: its variance 1 − 2aφ(a) / (2Φ(a) − 1), 0.0806 at a = 0.5
     y = draw_parameters(np.array([0.0]), np.array([[1.0]]), np.array([[-0.5, 0.5]]), 2000, seed=1)
-    assert y.min() == -0.5 and y.max() == 0.5
+    assert -0.5 <= y.min() and y.max() <= 0.5
+    a = 0.5
+    assert y.var() == pytest.approx(1 - 2 * a * norm.pdf(a) / (2 * norm.cdf(a) - 1), rel=0.1)
+
+
+def test_draws_near_a_bound_keep_what_the_covariance_ties():
+    """Two terms the data see only as a sum (a thrust gain against a vertical force, say): their covariance
+    keeps x₁ + x₂ within 0.001 while each moves by 0.1.  Written 0.02 above x₁'s lower bound, most draws would
+    cross it; drawn again instead of clipped, every draw keeps the sum (clipped, the sum moved by up to the
+    amount cut off, ~0.2: vehicles the covariance excludes)."""
+    from qr.bands import draw_parameters
+
+    sd, tie = 0.1, 0.001
+    var_sum, var = tie ** 2, sd ** 2  # Var(x₁ + x₂) = 2 var + 2 c
+    cov = np.array([[var, (var_sum - 2 * var) / 2], [(var_sum - 2 * var) / 2, var]])
+    x = draw_parameters(np.array([0.02, 0.98]), cov, np.array([[0.0, 1.0], [0.0, 2.0]]), 500, seed=5)
+    assert x.shape == (500, 2) and x[:, 0].min() >= 0.0
+    assert np.abs(x.sum(axis=1) - 1.0).max() <= 5 * tie
+    assert x[:, 0].std() > 0.3 * sd  # the terms still move apart, within the bound
 
 
 def test_same_seed_same_bands_bits_on_any_thread_count(known):
