@@ -201,7 +201,8 @@ def write(tmp, members: list[Member], scale, scale50, where: str, note: str, hor
         docs.append({"residual": rs.block(m.residual, name, f"{note}; ensemble member {k}"), "seed": m.seed,
                      "flights": m.flights, "best_epoch": m.best_epoch, "epochs_run": m.epochs_run})
     write_json(tmp / BANDS_FILE, {"schema": SCHEMA, "kind": "ensemble", "vehicle": "hybrid_vehicle.yaml",
-                                  "members": docs, "scale": scale, "scale50": scale50, "horizon": horizon, "calibrated_on": where,
+                                  "members": docs, "scale": scale, "scale50": scale50, "horizon": horizon,
+                                  "calibrated_on": where,
                                   "start": START,
                                   "resampling": "by flight: each member draws as many training flights as there "
                                                 "are, with replacement; a flight drawn twice counts twice"})

@@ -259,7 +259,7 @@ class Refinement:
                 "units": "each parameter's own (as parameters[].written)",
                 "at": "the rollout's optimum within the plausible bounds (rollout), parameters off their bounds",
                 "band_scale": self.band_scale, "band_scale50": self.band_scale50,
-                "calibrated_on": "the diagnosis's held-out windows (qr.bands: the 90 % band covers 90 % there)"}}
+                "calibrated_on": "the diagnosis's held-out windows (qr.bands: each band covers its share there)"}}
                if self.covariance is not None and len(self.covariance[0]) else {}),
         }
 

@@ -41,8 +41,9 @@ def bands_section(doc: dict, figure: str | None) -> list[str]:
         return L
     L += [f"Around each banded model's prediction, the 50 % and 90 % bands at h = {H}: balls whose radius is the "
           "spread of an ensemble of plants flown on the same windows (the 50 % and 90 % quantiles of their distance "
-          "from the model's prediction) times a scale per quantity and level, chosen on the training side's validation "
-          "data so that each band covers its share there (never on these flights). Coverage: the share of scored samples "
+          "from the model's prediction) times a scale per quantity and level, chosen on the training side's "
+          "validation data so that each band covers its share there (never on these flights). Coverage: the share "
+          "of scored samples "
           f"at h = {H} whose truth lies inside (nominally 50 % and 90 %).", "",
           "| model | band from | 90 % scale p / v / R / ω | 90 % band covers p / v / R / ω | 50 % band covers p / v / R / ω "
           "| median 90 % radius p (m) / R (rad) |", "|---|---|---|---|---|---|"]
