@@ -65,8 +65,17 @@ def _format_warning(message, category, filename, lineno, line=None):
     return f"{filename}:{lineno}: {category.__name__}: {message}\n"
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser, its usage errors in qr's one line (the problem, the fix, exit status 2) instead of
+    the usage block above argparse's message (the spec's "one line on standard error").  Subcommands
+    inherit it (``add_subparsers`` makes parsers of the parent's class)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_BAD_INPUT, error_line(QrInputError(None, message, f"see '{self.prog} --help'"), self.prog) + "\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
+    p = _Parser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
                                 "from measured flight logs.", epilog=EXAMPLES,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"qr {__version__}")
@@ -198,7 +207,7 @@ HYDRA_STAGES = {"filter": ("qr.stages.filter", "Kalman filters / smoother on one
 
 
 def _residual_parser() -> argparse.ArgumentParser:
-    s = argparse.ArgumentParser(prog="qr learn residual", formatter_class=argparse.RawDescriptionHelpFormatter,
+    s = _Parser(prog="qr learn residual", formatter_class=argparse.RawDescriptionHelpFormatter,
                                 description="A body force and torque trained through the multi-step rollout "
                                             "(docs/spec/hybrid.md), on top of a vehicle file.",
                                 epilog="examples:\n  qr learn residual a.csv b.csv c.csv --vehicle diag/extended_vehicle.yaml "

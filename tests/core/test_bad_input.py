@@ -471,3 +471,28 @@ def test_the_other_speed_unit_hint_gives_the_whole_fix(file_unit, tmp_path, caps
     # ... or the log converted: the same
     assert hover_ratio(wrong.assign(**{u: wrong[u] * scale for u in ["u1", "u2", "u3", "u4"]}),
                        load_vehicle(vfile)) == pytest.approx(good, rel=1e-5)
+
+
+@pytest.mark.parametrize("args, phrase", [
+    (["diagnose", "f.csv", "--out", "d"], "the following arguments are required: --vehicle"),
+    (["evaluate", "f.csv", "--vehicle", str(HB), "--out", "e", "--bogus"], "unrecognized arguments: --bogus"),
+    (["learn", "residual", "f.csv", "--vehicle", str(HB)], "the following arguments are required: --out"),
+    (["export", str(HB), "--out", "x"], "the following arguments are required: --to"),
+    (["replay", "f.csv", "--out", "r"], "the following arguments are required: --vehicle, --controller"),
+    (["nosuch"], "invalid choice: 'nosuch'"),
+])
+def test_a_command_line_error_is_one_line_with_its_fix(args, phrase, tmp_path, capsys, monkeypatch):
+    """A missing or unknown option is bad input too (the specs: exit 2, one line on standard error): the
+    problem and the command's --help as the fix, not argparse's usage block; nothing is written."""
+    from qr.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert err.count("\n") == 1 and err.endswith("\n"), err
+    prog = " ".join(["qr", *args[:2]]) if args[:2] == ["learn", "residual"] else \
+        ("qr" if args[0] == "nosuch" else f"qr {args[0]}")
+    assert err.startswith(f"{prog}: error: ") and phrase in err and err.rstrip().endswith(f"fix: see '{prog} --help'"), err
+    assert list(tmp_path.iterdir()) == []
