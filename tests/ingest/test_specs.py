@@ -14,7 +14,8 @@ PROJECT_OWN = {"replay.md"}  # qr replay's contract (issue 34): written in this 
 
 
 def test_the_specs_a_user_needs_are_in_docs():
-    assert {p.name for p in COPIES} >= {"flight-log.md", "diagnosis.md", "evaluate.md", "hybrid.md", "replay.md"}
+    assert {p.name for p in COPIES} >= {"flight-log.md", "diagnosis.md", "evaluate.md", "hybrid.md", "export.md",
+                                        "layout.md", "replay.md"}
 
 
 @pytest.mark.skipif(not SHARED.is_dir(), reason="no ../shared/spec beside this checkout to compare with")
