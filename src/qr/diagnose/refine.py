@@ -174,7 +174,7 @@ class Refinement:
     # (their indices into ``parameters``, the matrix), over the directions the data fix (_band_covariance); the Monte
     # Carlo band's draws (qr.bands)
     covariance: tuple | None = None
-    band_scale: Scale | None = None  # the band's scale per quantity, chosen on the held-out windows (qr.bands)
+    band_scale: Scale | None = None  # the band's scale per quantity, chosen on the training flights (calibration_windows)
     band_scale50: Scale | None = None  # the 50 % band's
 
     def properties(self) -> dict:
@@ -259,7 +259,8 @@ class Refinement:
                 "units": "each parameter's own (as parameters[].written)",
                 "at": "the rollout's optimum within the plausible bounds (rollout), parameters off their bounds",
                 "band_scale": self.band_scale, "band_scale50": self.band_scale50,
-                "calibrated_on": "the diagnosis's held-out windows (qr.bands: each band covers its share there)"}}
+                "calibrated_on": f"the training flights' windows, one start in {self.stride}, their training and "
+                                 "held-out parts alike (qr.bands: each band covers its share there)"}}
                if self.covariance is not None and len(self.covariance[0]) else {}),
         }
 
@@ -763,7 +764,8 @@ def refine(train: list[Windows], held_out: list[Windows], vehicle, effects: list
     ablation = _ablation(train, held_out, stack, vehicle, specs, theta0, written, H)
     diverged = fit.normal(written, [])[5]
     covariance = _band_covariance(fit, specs, cov_wanted)
-    band_scale, band_scale50 = _band_scale(held_out, vehicle, specs, written, covariance, H, seed)
+    band_scale, band_scale50 = _band_scale(calibration_windows(train, held_out, settings.stride), vehicle, specs,
+                                           written, covariance, H, seed)
     return Refinement(tuple(params), len(stack.starts), stack.lag, H, settings.stride, iters, stopped,
                       fit.cost(theta0), fit.cost(written), fit.cost(wanted), blocks_train, blocks_test,
                       time.perf_counter() - t0, why, tuple(directions), ablation, diverged, admission,
@@ -799,13 +801,22 @@ def _beyond_rule(fit, held_out: list[Windows], settings: RefineSettings, candida
     return rule
 
 
-def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, covariance, H: int,
+def calibration_windows(train: list[Windows], held_out: list[Windows], stride: int) -> list[Windows]:
+    """The windows the band's scale is chosen on: every ``stride``-th start of the training flights, their
+    training and held-out parts alike.  A scored flight is scored over all its phases (the manoeuvre, the hover
+    before landing); the held-out part alone is each flight's last quarter, on measured flights its gentlest,
+    and chose scales too small for whole flights (docs/evaluate.md, Bands).  With ~20 parameters fitted on
+    thousands of windows the training windows' errors are hardly smaller than a new flight's for it."""
+    return [w.scored_at(np.flatnonzero(w.ok)[::stride]) for w in (*train, *held_out) if w.ok.any()]
+
+
+def _band_scale(windows: list[Windows], vehicle, specs: list[_Spec], written, covariance, H: int,
                 seed: int) -> tuple[dict | None, dict | None]:
     """The Monte Carlo band's scales per quantity of its 90 % and 50 % levels (:func:`qr.bands.calibrate_levels`)
-    on the held-out windows: the written model and ``BAND_DRAWS`` draws of its parameters from the covariance,
-    each within its bounds."""
+    on ``windows`` (:func:`calibration_windows`): the written model and ``BAND_DRAWS`` draws of its parameters
+    from the covariance, each within its bounds."""
     idx, cov = covariance
-    if not held_out or not len(idx):
+    if not windows or not len(idx):
         return None, None
     from .. import bands
 
@@ -816,7 +827,7 @@ def _band_scale(held_out: list[Windows], vehicle, specs: list[_Spec], written, c
         full = written.copy()
         full[idx] = th
         Ps.append(_plant(vehicle, specs, full))
-    return bands.calibrate_levels(bands.spread(held_out, np.array(Ps), H))
+    return bands.calibrate_levels(bands.spread(windows, np.array(Ps), H))
 
 
 BAND_DRAWS = BandsConfig().draws  # evaluate.bands.draws' default: the band calibrated is the band evaluated
