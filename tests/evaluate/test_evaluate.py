@@ -151,6 +151,7 @@ def test_a_tracked_diagnosis_logs_the_rollout_at_the_horizon(tmp_path, monkeypat
                         log=lambda m: None)
     ro = doc["rollout"]
     assert ro["horizon"] == 20 and set(ro["models"]) == {"hold", "rate_frozen", "nominal", "extended"}
+    assert ro["dt"] == pytest.approx(0.01, rel=1e-9)  # the 100 Hz log's step: h = 20 is 0.2 s (evaluation.json's "dt")
     # the named drag and flapping make the extended model's attitude rollout better than the nominal one's
     assert ro["models"]["extended"]["R"]["mae"][-1] < 0.5 * ro["models"]["nominal"]["R"]["mae"][-1]
     run = tracking._client().search_runs([tracking.experiment_id("diagnose")])[0]

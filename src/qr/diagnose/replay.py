@@ -67,9 +67,10 @@ class HeldOutRollout:
     models: Mapping[str, rollout.RolloutBlock]  # model -> its block (qr.rollout.summary)
     explained: Explained
     part: str = "held-out"
+    dt: float | None = None  # s, the flights' median step (h steps are h dt seconds, as evaluation.json's "dt")
 
     def record(self) -> dict:
-        return {"horizon": self.horizon, "part": self.part, "models": dict(self.models),
+        return {"horizon": self.horizon, "dt": self.dt, "part": self.part, "models": dict(self.models),
                 "explained": self.explained.record()}
 
 
@@ -231,4 +232,6 @@ def rollout_all(states_list, measured_list, vehicle, extension: list[dict], wind
         if keep.any():
             parts.append(rollout.score(st, meas, horizon, max_input_gap, models, keep))
     pooled = rollout.pool(parts)
-    return HeldOutRollout(horizon, {k: rollout.summary(*v) for k, v in pooled.items()}, explained)
+    steps = np.concatenate([np.diff(st["t"].to_numpy(float)) for st in states_list])
+    return HeldOutRollout(horizon, {k: rollout.summary(*v) for k, v in pooled.items()}, explained,
+                          dt=float(np.median(steps)) if len(steps) else None)
