@@ -75,9 +75,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="qr", description="Learn what a quadrotor's physics model gets wrong "
-                                "from measured flight logs.", epilog=EXAMPLES,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(prog="qr", description="Learn what a quadrotor's physics model gets wrong from measured flight logs.",
+                epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"qr {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
 
@@ -208,13 +207,13 @@ HYDRA_STAGES = {"filter": ("qr.stages.filter", "Kalman filters / smoother on one
 
 def _residual_parser() -> argparse.ArgumentParser:
     s = _Parser(prog="qr learn residual", formatter_class=argparse.RawDescriptionHelpFormatter,
-                                description="A body force and torque trained through the multi-step rollout "
-                                            "(docs/spec/hybrid.md), on top of a vehicle file.",
-                                epilog="examples:\n  qr learn residual a.csv b.csv c.csv --vehicle diag/extended_vehicle.yaml "
-                                       "--out res\n  qr learn residual a.csv b.csv c.csv --vehicle v.yaml --out sweep -m "
-                                       "learn.width=16,32 learn.horizon=25,50\nwrites OUTDIR/hybrid_vehicle.yaml, "
-                                       "residual.npz, training.json, report.md, figures/ (a sweep: OUTDIR/job<N>/, "
-                                       "sweep.csv); settings: conf/learn/residual.yaml (src/qr/residual_fit.py)")
+                description="A body force and torque trained through the multi-step rollout "
+                            "(docs/spec/hybrid.md), on top of a vehicle file.",
+                epilog="examples:\n  qr learn residual a.csv b.csv c.csv --vehicle diag/extended_vehicle.yaml "
+                       "--out res\n  qr learn residual a.csv b.csv c.csv --vehicle v.yaml --out sweep -m "
+                       "learn.width=16,32 learn.horizon=25,50\nwrites OUTDIR/hybrid_vehicle.yaml, "
+                       "residual.npz, training.json, report.md, figures/ (a sweep: OUTDIR/job<N>/, "
+                       "sweep.csv); settings: conf/learn/residual.yaml (src/qr/residual_fit.py)")
     s.add_argument("flights", nargs="+", metavar="FLIGHT.csv [KEY=VALUE ...]",
                    help="the training flights (a part is kept for validation), and optional Hydra overrides "
                         "(learn.*, evaluate.*, filter=...), before or after the options")
