@@ -159,9 +159,10 @@ def _verdict(d: Diagnosis) -> str:
                 f"held-out data).{tail}")
     names = ", ".join(e.name for e in d.effects)
     gain = 1 - h.extended_loss / h.nominal_loss
+    windy = "".join(f" {m.effect}: {m.sentence()}." for m in d.fit.wind)
     return (f"Named {names}; the extended model removes {percent(gain)} of the nominal model's weighted "
             f"held-out residual variance (now {h.extended_loss:.2f} x the noise floor's variance); "
-            f"{_left_above_noise(h)}.")
+            f"{_left_above_noise(h)}.{windy}")
 
 
 # an axis whose held-out RMSE after extension is at most this many times the noise floor's is "at the noise
@@ -220,6 +221,7 @@ def run(estimates: list[SegmentEstimate], flights: Flights, vehicle, settings: S
     fitted = identify(labels, vehicle, cfg, settings.seed, say)
     supported, not_named = held_out_support(fitted, vehicle, cfg, settings.seed, say)
     final, held_out, dropped = check_held_out(supported, vehicle, cfg, settings.seed)
+    final = final.with_wind(vehicle)
     effects = [e.in_vehicle() for e in final.effects]
     say("replay")
     replay = replay_all(states, rows, vehicle, effects, cfg.horizon_s, final.labels.full.windows)

@@ -101,6 +101,8 @@ def stated(d: Diagnosis) -> dict:
         "split": _split(d.labels.full.windows),
         "nominal": _axes(h.nominal_rmse),
         "effects": [e.stated() for e in d.effects],
+        # a named constant moment the wind the named force implies would make (qr.diagnose.wind)
+        **({"wind_moment": [m.record() for m in d.fit.wind]} if d.fit.wind else {}),
         "extended": _axes(h.extended_rmse),
         "replay": _replay(d),
         "rollout": d.rollout.record(),

@@ -23,6 +23,7 @@ from . import slow_torque as slow_mod
 from .core import block_stats, extended_prediction, first_delay, refine_delay, to_parameters
 from .labels import Labels, Prepared, at_delay, exact_delay_term
 from .settings import DiagnoseConfig
+from .wind import WIND, WindMoment, wind_moments
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class Fit:
     # effect -> (parameters, s.e.) from the slow balance, not the fit
     fixed: Mapping[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     explained: Mapping[str, float] = field(default_factory=dict)  # effect -> its share of the held-out loss (.held_out)
+    wind: tuple[WindMoment, ...] = ()  # named constant moments the wind's could be (.wind)
 
     def refit(self, effects: list[str]) -> np.ndarray:
         """One-step fit of ``effects`` on the training part, the slow-balance parameters kept."""
@@ -83,9 +85,16 @@ class Fit:
 
     @property
     def effects(self) -> list[NamedEffect]:
+        windy = {m.effect for m in self.wind}
         return [NamedEffect(p["name"], p["parameters"], p["stderr"], self.explained[p["name"]],
-                            self.selection.confounded.get(p["name"], []))
+                            self.selection.confounded.get(p["name"], []) + [WIND] * (p["name"] in windy))
                 for p in to_parameters(self.named, self.theta, self.se)]
+
+    def with_wind(self, vehicle) -> Fit:
+        """The fit with the named constant moments the wind's could be (:func:`.wind.wind_moments`, on the
+        training part)."""
+        s = self.labels.full.design_s.take(np.flatnonzero(self.labels.full.train))
+        return replace(self, wind=wind_moments(s, vehicle, self.named, self.theta))
 
 
 def standard_errors(stats: BlockStats, effects: list[str], n_boot: int, seed: int) -> np.ndarray:

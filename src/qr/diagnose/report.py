@@ -22,6 +22,7 @@ from .core import AXES
 from .diagnosis import Diagnosis
 from .replay import Replays
 from .document import stated
+from .wind import WIND
 
 
 def _slow_torque_lines(slow: dict | None) -> list[str]:
@@ -111,11 +112,16 @@ def _named_causes(d: Diagnosis, doc: dict, vehicle=None) -> list[str]:
             L.append("The model does not describe this flight (above): its largest effect is stated, fitted alone, "
                      "with its share of the held-out residual alone; nothing else is named, and extended_vehicle.yaml "
                      "is the vehicle as given.\n")
+        windy = {m.effect: m for m in d.fit.wind}
         for e in doc["effects"]:
             L.append(f"- `{e['name']}`: {CATALOG[e['name']].doc}.")
-            if e["confounded_with"]:
-                L.append(f"  On this flight it cannot be told apart from {', '.join(e['confounded_with'])}; "
+            others = [c for c in e["confounded_with"] if not (c == WIND and e["name"] in windy)]
+            if others:
+                L.append(f"  On this flight it cannot be told apart from {', '.join(others)}; "
                          "the simpler one is named.")
+            if e["name"] in windy:
+                said = windy[e["name"]].sentence()
+                L.append(f"  On this flight {said}.")
         L.append("")
     elif d.held_out.misfit:
         L.append("None: the model does not describe this flight (above).\n")

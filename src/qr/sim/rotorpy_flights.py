@@ -78,6 +78,7 @@ class RotorpyFlight:
     seed: int = 0
     trajectory: Circle = field(default_factory=Circle)
     rtol: float = 1e-5  # RotorPy's integrator (RK45) per step: positions within 2e-7 m of rtol 1e-9's, far below the log's noise
+    wind: tuple = (0.0, 0.0, 0.0)  # m/s, world: a steady wind (RotorPy keeps its state's wind; its aerodynamics act on the airspeed)
 
 
 def fly(qp: dict, cfg: RotorpyFlight) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -92,7 +93,8 @@ def fly(qp: dict, cfg: RotorpyFlight) -> tuple[pd.DataFrame, pd.DataFrame]:
     flat = traj.update(0.0)
     w0 = np.full(qp["num_rotors"], hover_speed(qp))
     state = {"x": np.asarray(flat["x"], float), "v": np.asarray(flat["x_dot"], float),
-             "q": np.array([0.0, 0.0, 0.0, 1.0]), "w": np.zeros(3), "wind": np.zeros(3), "rotor_speeds": w0}
+             "q": np.array([0.0, 0.0, 0.0, 1.0]), "w": np.zeros(3), "wind": np.asarray(cfg.wind, float),
+             "rotor_speeds": w0}
     vehicle = Multirotor(qp, initial_state=state, aero=cfg.aero,
                          integrator_kwargs={"method": "RK45", "rtol": cfg.rtol, "atol": 1e-9})
     controller = SE3Control(qp)
