@@ -146,16 +146,53 @@ def _fit_named(labels: Labels, vehicle, stats: BlockStats, named: list[str], d, 
     return theta, boot_stats, replace(labels, full=labels.full.at_delay(vehicle, d))
 
 
+# a C_T error and a mass error are one term in force; a C_T error also scales the roll/pitch torque (the spec)
+CT_OR_MASS = {"thrust_gain": "mass_error", "mass_error": "thrust_gain"}
+
+
+def _balance(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int) -> slow_mod.SlowBalance:
+    cross = f.labels.cross
+    resid = cross.y - extended_prediction(cross, vehicle, f.named, f.theta, None, f.force_only)
+    return slow_mod.slow_torque(cross, vehicle, resid, cfg.slow_torque_horizon, cfg.selection.folds,
+                                cfg.selection.t_name, cfg.slow_torque_min_gain, cfg.selection.bootstrap, seed)
+
+
+def _partner_swapped(f: Fit, cfg: DiagnoseConfig, seed: int) -> tuple[Fit, str, str] | None:
+    """The fit with a named C_T (or mass) error swapped for the partner the selection could not tell it from
+    (its ``confounded_with``), refitted with its s.e.; None where there is none to swap (or a delay or the
+    torque arbitration changed the statistics the swap would need)."""
+    if "actuator_delay" in f.named or f.force_only:
+        return None
+    for e in f.named:
+        p = CT_OR_MASS.get(e)
+        if p and p in f.selection.confounded.get(e, []) and p not in f.named and p in f.stats.cols.effects:
+            named = sorted([p if x == e else x for x in f.named], key=list(CATALOG).index)
+            conf = {k: v for k, v in f.selection.confounded.items() if k != e}
+            conf[p] = [e] + [c for c in f.selection.confounded[e] if c not in (e, p)]
+            sel = replace(f.selection, named=named, confounded=conf)
+            return (replace(f, selection=sel, named=named, theta=f.refit(named),
+                            se=standard_errors(f.stats, named, cfg.selection.bootstrap, seed)), e, p)
+    return None
+
+
 def _slow_balance(f: Fit, vehicle, cfg: DiagnoseConfig, seed: int, say) -> Fit:
     """The slow torque balance, where an inertia error is a candidate the one-step fit did not name; an
-    entry it names joins the named set with the balance's parameters and s.e. (``fixed``)."""
+    entry it names joins the named set with the balance's parameters and s.e. (``fixed``).  Where the set
+    holds a C_T (or mass) error confounded with its partner, a summed torque residual may be the C_T error's
+    torque scaling alone (a payload named as C_T leaves its torque scaled by m/(m + dm)): if the balance
+    names nothing with the partner instead, the partner is named, without an inertia error."""
     if not (cfg.slow_torque_horizon and slow_mod.EFFECT in f.candidates and slow_mod.EFFECT not in f.named):
         return f
     say("slow torque balance")
-    cross = f.labels.cross
-    resid = cross.y - extended_prediction(cross, vehicle, f.named, f.theta, None, f.force_only)
-    slow = slow_mod.slow_torque(cross, vehicle, resid, cfg.slow_torque_horizon, cfg.selection.folds,
-                                cfg.selection.t_name, cfg.slow_torque_min_gain, cfg.selection.bootstrap, seed)
+    slow = _balance(f, vehicle, cfg, seed)
+    swap = _partner_swapped(f, cfg, seed) if slow.named else None
+    if swap is not None:
+        g, was, now = swap
+        other = _balance(g, vehicle, cfg, seed)
+        if not other.named:
+            note = (f"with {was} the balance named {', '.join(a.parameter for a in slow.axes if a.named)}; with "
+                    f"{now}, the effect the selection could not tell it from, nothing: {now} is named instead")
+            return replace(g, slow=replace(other, note=note))
     if not slow.named:
         return replace(f, slow=slow)
     ax = slow.axes

@@ -36,8 +36,9 @@ def _slow_torque_lines(slow: dict | None) -> list[str]:
         head = f"{a['parameter']} = {a['estimate']:.3g} ± {a['stderr']:.2g} kg m²"
         parts.append(head + (f" ({100 * a['cv_gain']:.1f} % of the summed {a['axis']} residual), named" if a["named"]
                              else f": not named, it {a['why_not']} on {a['axis']}"))
+    note = f" ({slow['note']})" if slow.get("note") else ""
     return [f"Slow torque balance (each inertia entry judged on its axis's torque residual summed over "
-            f"{slow['horizon']} samples, after the named effects): " + "; ".join(parts) + ".\n"]
+            f"{slow['horizon']} samples, after the named effects): " + "; ".join(parts) + f".{note}\n"]
 
 
 def _anatomy_table(anatomy: dict) -> list[str]:

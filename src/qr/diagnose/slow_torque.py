@@ -90,10 +90,11 @@ class SlowBalance:
     windows: int
     axes: list[SlowAxis]
     named: bool
+    note: str = ""  # where the named set changed for it (qr.diagnose.fit: a C_T error swapped for a mass error)
 
     def record(self) -> dict:
         return {"horizon": self.horizon, "windows": self.windows, "axes": [a.record() for a in self.axes],
-                "named": self.named}
+                "named": self.named, **({"note": self.note} if self.note else {})}
 
 
 def slow_inertia(x: np.ndarray, y: np.ndarray, block: np.ndarray, n_blocks: int, bounds, folds: int,
