@@ -9,32 +9,18 @@ vehicle does not have.  With mass_error instead the balance names nothing, so ma
 thrust_gain in confounded_with, and no inertia error.
 """
 
-import copy
-
 import pytest
 
 pytest.importorskip("rotorpy")
 
-from qr.flight import write_flight  # noqa: E402
-from qr.sim.rotorpy_flights import Circle, RotorpyFlight, fly, vehicle_dict  # noqa: E402
-from qr.stages.diagnose import run_diagnosis  # noqa: E402
-from qr.vehicle import save_vehicle, vehicle_from_dict  # noqa: E402
+from rotorpy_cases import diagnose_circles, hummingbird  # noqa: E402
 
 PAYLOAD = 0.05  # kg
 
 
 def test_a_payload_in_rotorpy_is_a_mass_error_without_an_inertia_error(tmp_path):
-    from rotorpy.vehicles.hummingbird_params import quad_params
-
-    flown = copy.deepcopy(quad_params)
-    flown["mass"] = quad_params["mass"] + PAYLOAD
-    flights = []
-    for seed, circle in enumerate([Circle(), Circle(radius=(1.5, 2.5, 0.4), freq=(0.25, 0.15, 0.3))]):
-        flight, _ = fly(flown, RotorpyFlight(duration=30.0, aero=False, seed=seed, trajectory=circle))
-        flights.append(tmp_path / f"rotorpy{seed}.csv")
-        write_flight(flight, flights[-1])
-    save_vehicle(vehicle_from_dict(vehicle_dict(quad_params, "hummingbird-rotorpy")), tmp_path / "vehicle.yaml")
-    doc = run_diagnosis(flights, tmp_path / "vehicle.yaml", tmp_path / "diag", [], log=lambda m: None, figures=False)
+    filed = hummingbird(k_flap=0.0)
+    doc = diagnose_circles(hummingbird(k_flap=0.0, mass=filed["mass"] + PAYLOAD), tmp_path, filed, aero=False)
     named = {e["name"]: e for e in doc["effects"]}
     assert set(named) == {"mass_error"}, list(named)
     m = named["mass_error"]

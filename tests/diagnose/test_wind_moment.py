@@ -11,8 +11,6 @@ moment is square to the wind's (the same named set) keeps cg_offset unconfounded
 checked by hand on signals made for it.
 """
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -74,22 +72,9 @@ def test_a_cg_moment_along_the_winds_is_reported_as_possibly_the_winds_by_hand()
 
 def test_the_winds_moment_in_rotorpy_is_not_named_a_cg_offset(tmp_path):
     pytest.importorskip("rotorpy")
-    from rotorpy.vehicles.hummingbird_params import quad_params
+    from rotorpy_cases import diagnose_circles, hummingbird
 
-    from qr.flight import write_flight
-    from qr.sim.rotorpy_flights import Circle, RotorpyFlight, fly, vehicle_dict
-    from qr.stages.diagnose import run_diagnosis
-    from qr.vehicle import save_vehicle, vehicle_from_dict
-
-    qp = copy.deepcopy(quad_params)
-    qp["k_flap"] = -1e-5
-    flights = []
-    for seed, circle in enumerate([Circle(), Circle(radius=(1.5, 2.5, 0.4), freq=(0.25, 0.15, 0.3))]):
-        flight, _ = fly(qp, RotorpyFlight(duration=30.0, seed=seed, trajectory=circle, wind=WIND))
-        flights.append(tmp_path / f"rotorpy{seed}.csv")
-        write_flight(flight, flights[-1])
-    save_vehicle(vehicle_from_dict(vehicle_dict(qp, "hummingbird-rotorpy")), tmp_path / "vehicle.yaml")
-    doc = run_diagnosis(flights, tmp_path / "vehicle.yaml", tmp_path / "diag", [], log=lambda m: None, figures=False)
+    doc = diagnose_circles(hummingbird(), tmp_path, wind=WIND)
     named = {e["name"]: e for e in doc["effects"]}
     assert "wind_force" in named, list(named)
     # the wind's force points along the wind (RotorPy's drag on the airspeed v - w)

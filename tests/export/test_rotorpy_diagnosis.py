@@ -17,37 +17,16 @@ inside the linear drag's kx, ky.  Whatever is named, nothing is said about the v
 coefficients are the file's.
 """
 
-import copy
-
 import pytest
 
 pytest.importorskip("rotorpy")
 
-from qr.flight import write_flight  # noqa: E402
-from qr.sim.rotorpy_flights import Circle, RotorpyFlight, expected_effects, fly, vehicle_dict  # noqa: E402
-from qr.stages.diagnose import run_diagnosis  # noqa: E402
-from qr.vehicle import save_vehicle, vehicle_from_dict  # noqa: E402
-
-CIRCLES = [Circle(), Circle(radius=(1.5, 2.5, 0.4), freq=(0.25, 0.15, 0.3))]
-K_FLAP = -1e-5
-
-
-def hummingbird(k_flap=K_FLAP):
-    from rotorpy.vehicles.hummingbird_params import quad_params
-
-    qp = copy.deepcopy(quad_params)
-    qp["k_flap"] = k_flap
-    return qp
+from qr.sim.rotorpy_flights import expected_effects  # noqa: E402
+from rotorpy_cases import diagnose_circles, hummingbird  # noqa: E402
 
 
 def diagnose(qp, aero, tmp_path):
-    flights = []
-    for seed, circle in enumerate(CIRCLES):
-        flight, _ = fly(qp, RotorpyFlight(duration=30.0, aero=aero, seed=seed, trajectory=circle))
-        flights.append(tmp_path / f"rotorpy{seed}.csv")
-        write_flight(flight, flights[-1])
-    save_vehicle(vehicle_from_dict(vehicle_dict(qp, "hummingbird-rotorpy")), tmp_path / "vehicle.yaml")
-    doc = run_diagnosis(flights, tmp_path / "vehicle.yaml", tmp_path / "diag", [], log=lambda m: None, figures=False)
+    doc = diagnose_circles(qp, tmp_path, aero=aero)
     return {e["name"]: e["parameters"] for e in doc["effects"]}, doc
 
 
