@@ -2,6 +2,7 @@
 # Stages live in workflow/rules/*.smk; scripts in workflow/scripts/ only call qr.
 
 
+include: "workflow/rules/scheduler.smk"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/ingest.smk"
 include: "workflow/rules/filter.smk"
