@@ -35,7 +35,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rI": [0.0, 0.0, 0.0],
         "rotor_radius": display_radius(pp),
         "c_Dx": P[ps.P_QUAD.start], "c_Dy": P[ps.P_QUAD.start + 1], "c_Dz": P[ps.P_QUAD.start + 2],
-        "k_eta": float(np.mean(pp.k_thrust)), "k_m": float(np.mean(pp.k_yaw)),
+        "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
         "k_d": P[ps.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[ps.P_TLIFT],
         "k_flap": -P[ps.P_FLAP] / (4 * pp.hover),
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
@@ -61,7 +61,7 @@ def qr_terms(vehicle, pp: mp.Plant) -> dict:
     k_eta = float(np.mean(pp.k_thrust))
     rem = P[ps.P_REM].reshape(3, 11) if P[ps.P_REM_ON] else None
     return {
-        "thrust_scale": list(pp.k_thrust / k_eta),  # each rotor's thrust / (k_eta ω²), its drag torque / (k_m ω²)
+        "thrust_scale": list(pp.k_thrust / k_eta),  # each rotor's thrust / (k_eta ω²)
         "linear_drag": list(P[ps.P_LIN]),  # N s/m
         "quadratic_drag": list(P[ps.P_QUAD]),  # N s²/m²
         "rotor_drag": P[ps.P_RDRAG] / pp.unit,  # N s/m per rad/s
@@ -156,7 +156,6 @@ class QrMultirotor(Multirotor):
         extra = (self._scale - 1.0) * thrust
         F = np.array([0.0, 0.0, extra.sum()])
         M = np.cross(self.rotor_geometry, np.outer(extra, [0.0, 0.0, 1.0])).sum(axis=0)
-        M[2] += np.sum((self._scale - 1.0) * self.rotor_dir * self.k_m * speeds**2)  # its drag torque with it
         if self.exact_aero:
             F -= t["linear_drag"] * vb + t["quadratic_drag"] * np.abs(vb) * vb
             F[:2] -= t["rotor_drag"] * speeds.sum() * vb[:2]
@@ -224,9 +223,7 @@ def _key_rows(vehicle, pp: mp.Plant, qp: dict) -> list[Row]:
         "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²", mp.fx_k_thrust(vehicle, mean=True),
                          "the rotors' mean thrust per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
                                                                     if mp.has(vehicle, "motor_imbalance") else "")),
-        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle, mean=True),
-                         "the rotors' mean drag torque per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
-                                                                         if mp.has(vehicle, "motor_imbalance") else "")),
+        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle)),
     })
     out += [
         Row("layout (rotor x, y), hub_z", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions)
@@ -266,17 +263,16 @@ def _rotor_effect_row(name: str, vehicle, pp: mp.Plant, qp: dict, size: dict) ->
                    formula=mp.fx_k_thrust(vehicle, mean=True))
     elif name == "yaw_torque_gain":
         return Row(name, val, "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
-                   formula=mp.fx_k_yaw(vehicle, mean=True))
+                   formula=mp.fx_k_yaw(vehicle))
     elif name == "cg_offset":
         return Row(name, val, "rotor_pos", "(shifted)", EXACT,
                    "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]")
     elif name == "motor_imbalance":
         ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
-        return Row(name, val, "k_eta, k_m (means) + QR_TERMS['thrust_scale']",
+        return Row(name, val, "k_eta (mean) + QR_TERMS['thrust_scale']",
                    _vec(qr_terms(vehicle, pp)["thrust_scale"]), EXACT,
-                   "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub and (scale_i - 1) "
-                   "rotor_directions_i k_m ω_i² about body z; Multirotor(quad_params) alone has their mean k_eta "
-                   "and k_m", formula=f"n · (1 + d_i) / (n + {ds})")
+                   "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
+                   "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})")
     elif name == "rotor_drag":
         both = P[ps.P_RDM] == P[ps.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both
         return Row(name, val, "k_d (rotor_drag_matrix = diag(k_d, k_d, k_z))",

@@ -82,9 +82,7 @@ def _add_effect(P: np.ndarray, n: str, k: dict) -> None:
     elif n == "ground_effect":
         P[P_GE] += k["k"]
     elif n == "motor_imbalance":
-        share = 1.0 + np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
-        P[P_SCALE] *= share
-        P[P_YAW_GAIN] *= share  # the rotor's drag torque scales with its thrust
+        P[P_SCALE] *= 1.0 + np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
     elif n == "cg_offset":
         P[P_CG] += [k["rx"], k["ry"]]
     elif n == "torque_bias":
