@@ -193,13 +193,17 @@ def _ground_effect(s, v):
 
 
 def _motor_imbalance(s, v):
-    cols = v.rotors.rotor_wrench_columns()  # (4 wrench rows, n rotors)
+    B = v.rotors.matrix  # rows T, Γx, Γy, Γz per u²
     uf, ut = s.u2_force, s.u2_torque
+    # a rotor's drag torque scales with its thrust relative to the others' (1 + d_i - mean(d)): the common
+    # mode stays thrust only, so an all-equal imbalance is thrust_gain in every row (spec)
+    yaw = B[3] * ut[:, :4]
     D = _zeros(s, 4)
     for i in range(4):
-        D[:, 2, i] = cols[0, i] * uf[:, i]
-        D[:, 3, i] = cols[1, i] * ut[:, i]
-        D[:, 4, i] = cols[2, i] * ut[:, i]
+        D[:, 2, i] = B[0, i] * uf[:, i]
+        D[:, 3, i] = B[1, i] * ut[:, i]
+        D[:, 4, i] = B[2, i] * ut[:, i]
+        D[:, 5, i] = yaw[:, i] - yaw.mean(axis=1)
     return D
 
 
@@ -316,9 +320,11 @@ CATALOG: dict[str, Effect] = {e.name: e for e in [
     Effect("ground_effect", ("k",), ("m^2",), (0,), _ground_effect, (2,),
            doc="force k T / p_z^2 [0, 0, 1]",
            meaning="extra thrust near the floor (k T / height²)"),
-    Effect("motor_imbalance", ("d1", "d2", "d3", "d4"), ("-",) * 4, (0, 0, 0, 0), _motor_imbalance, (2, 3, 4),
-           doc="rotor i thrust C_T (1 + d_i) u_i^2",
-           meaning="one rotor's thrust off by the share d_i against the others"),
+    Effect("motor_imbalance", ("d1", "d2", "d3", "d4"), ("-",) * 4, (0, 0, 0, 0), _motor_imbalance, (2, 3, 4, 5),
+           doc="rotor i thrust C_T (1 + d_i) u_i^2, drag torque C_Q (1 + d_i - mean(d)) u_i^2",
+           meaning="one rotor's thrust and drag torque off by the share d_i against the others (a weak or "
+                   "damaged rotor, a speed or command scale: its drag torque scales with its thrust; the rotors' "
+                   "yaw-sign pattern of the d_i is read from the yaw torque on that premise)"),
     Effect("cg_offset", ("rx", "ry"), ("m", "m"), (0, 0), _cg_offset, (3, 4),
            doc="torque [-ry T, rx T, 0]",
            meaning="the centre of gravity off the rotor centre: the thrust rolls and pitches the body"),

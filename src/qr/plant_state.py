@@ -100,7 +100,7 @@ P_HUB = PARAMS.slot("hubs", 12, "m, each rotor's hub (x, y, z) from the layout's
 # rotor and airframe properties the catalog has no term for (qr.vehicle.ROTOR_PROPERTIES)
 P_FLAP_PITCH = PARAMS.slot("flapping_pitch_ratio", 1, "the blade-flapping coefficient about y over the one about x")
 P_ROTOR_J = PARAMS.slot("rotor_inertia", 1, "kg m² times rad/s per rotor-speed unit")
-P_YAW_GAIN = PARAMS.slot("rotor_yaw_gains", 4, "each rotor's yaw-torque gain")
+P_YAW_GAIN = PARAMS.slot("rotor_yaw_gains", 4, "each rotor's yaw-torque gain (rotor_torque_gains, motor_imbalance)")
 N_P = PARAMS.size
 
 # ---- the learned wrench's network, packed after N_P (qr.residual.pack): its header, then d_0 … d_L, μ, σ,

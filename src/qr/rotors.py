@@ -88,17 +88,6 @@ class RotorMap:
         w = self.wrench(u)
         return w[..., 0], w[..., 1:]
 
-    def rotor_wrench_columns(self) -> np.ndarray:
-        """Column i: the wrench ``[T, Γx, Γy, Γz]`` of rotor i per unit ``u_i²`` thrust part only.
-
-        Used by effects that scale individual rotors' thrust (motor imbalance):
-        yaw torque comes from C_Q, not C_T, so its row is zero here.
-        """
-        ct = self.thrust_coeff
-        x, y = self.positions[:, 0], self.positions[:, 1]
-        return np.vstack([ct * np.ones(self.n), ct * y, -ct * x, np.zeros(self.n)])
-
-
 
 @dataclass(frozen=True)
 class CommandMap:

@@ -319,6 +319,26 @@ def reap_stale(client=None) -> list[str]:
     return [r.info.run_id for r in stale]
 
 
+def reap_sweep(parent: str, wait_s: float = 30.0, client=None) -> list[str]:
+    """After an interrupted sweep: its runs (the parent ``parent`` and its children) that a process left
+    RUNNING are marked KILLED as :func:`reap_stale` marks them, waiting up to ``wait_s`` for the processes still
+    ending (a worker its pool killed while it closed its run).  This process's own runs are not waited for.
+    Returns the runs marked."""
+    if os.environ.get("QR_TRACKING", "on").lower() in ("off", "0", "false"):
+        return []
+    client = client or _client()
+    exp = _retry(client.get_run, parent).info.experiment_id
+    children = f"attributes.status = 'RUNNING' and tags.`mlflow.parentRunId` = '{parent}'"
+    me, deadline, marked = str(os.getpid()), time.monotonic() + wait_s, []
+    while True:
+        marked += reap_stale(client)
+        runs = [_retry(client.get_run, parent), *_retry(client.search_runs, [exp], children)]
+        if not [r for r in runs if r.info.status == "RUNNING" and r.data.tags.get("qr.pid") != me] \
+                or time.monotonic() > deadline:
+            return marked
+        time.sleep(0.2)
+
+
 def _reap_once(client) -> None:
     global _reaped
     if _reaped:

@@ -2,6 +2,7 @@ import json
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -187,3 +188,71 @@ def test_a_sweep_that_never_reaches_its_end_hook_closes_its_parent_run_at_exit(t
 
     run = tracking._client().get_run((tmp_path / PARENT_FILE).read_text().strip())
     assert run.info.status == "FAILED"  # (the exit hook's status: see SweepCallback._open)
+
+
+def _killed_holding_a_run(tmp_path, script: str) -> None:
+    """Run ``script`` (argv[1]: tmp_path) in a process that is SIGKILLed once it has written ``ready``: what it
+    opened stays RUNNING (forced by the file, not by timing)."""
+    ready = tmp_path / "ready"
+    p = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script), str(tmp_path)], cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 300
+        while not ready.exists():
+            assert p.poll() is None and time.monotonic() < deadline, "the script ended before it was ready"
+            time.sleep(0.05)
+    finally:
+        p.kill()
+        p.wait()
+
+
+def test_a_ctrl_c_ends_the_runs_of_sweep_workers_their_pool_killed(tmp_path, monkeypatch):
+    """Ctrl-C on a sweep run by joblib: the pool kills its workers, one of them while its job's run was open
+    (a hand test of `qr learn -m sweep=table_4_2 hydra/launcher=joblib2`, Ctrl-C after 22 s, left row02
+    RUNNING).  Closing the parent on the interrupt ends that run KILLED, saying its process was gone."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.stages.sweep_callback import SweepCallback, parent_id
+
+    sweep = SweepCallback()
+    sweep._open(tmp_path, "sweep", {"sweep": "s"})
+    _killed_holding_a_run(tmp_path, """
+        import sys
+        from pathlib import Path
+        from qr import tracking
+        from qr.stages.sweep_callback import parent_id
+        out = Path(sys.argv[1])
+        with tracking.run("learn", "row01", {}, parent=tracking.Run(tracking._client(), parent_id(out))):
+            (out / "ready").write_text("")
+            import time; time.sleep(600)
+    """)
+    client = tracking._client()
+    parent = parent_id(tmp_path)
+    child = client.search_runs([client.get_run(parent).info.experiment_id],
+                               f"tags.`mlflow.parentRunId` = '{parent}'")[0]
+    assert child.info.status == "RUNNING"
+    sweep._close(KeyboardInterrupt())
+    child = client.get_run(child.info.run_id)
+    assert child.info.status == "KILLED" and "ended without closing the run" in child.data.tags["qr.killed"]
+    assert client.get_run(parent).info.status == "KILLED"
+
+
+def test_the_workflow_ends_the_parent_run_of_a_sweep_process_killed_after_ctrl_c(tmp_path, monkeypatch):
+    """The workflow's job (workflow/scripts/learn_sweep.py) kills a sweep that does not end within its grace
+    after Ctrl-C; what the sweep left open then ends KILLED (a CI run of tests/workflow/test_faults.py left
+    table_4_2's parent RUNNING after Ctrl-C)."""
+    monkeypatch.setenv("QR_TRACKING", "on")
+    from qr import tracking
+    from qr.stages.sweep_callback import end_orphaned_runs, parent_id
+
+    _killed_holding_a_run(tmp_path, """
+        import sys
+        from pathlib import Path
+        from qr.stages.sweep_callback import SweepCallback
+        SweepCallback()._open(Path(sys.argv[1]), "sweep", {"sweep": "s"})
+        (Path(sys.argv[1]) / "ready").write_text("")
+        import time; time.sleep(600)
+    """)
+    parent = parent_id(tmp_path)
+    assert tracking._client().get_run(parent).info.status == "RUNNING"
+    assert end_orphaned_runs(tmp_path, wait_s=0.0) == [parent]
+    assert tracking._client().get_run(parent).info.status == "KILLED"

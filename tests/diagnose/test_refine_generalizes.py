@@ -1,9 +1,9 @@
 """A per-rotor thrust error, identified by ``qr diagnose … diagnose.refine=rollout`` on one trajectory type, and
 the model it writes scored by ``qr evaluate`` on another type it never saw (issue 33, part 2's test).
 
-A Crazyflie 2.1 (brushless file) whose rotor 2 makes 3 % less thrust per squared speed than the file says
-(``motor_imbalance`` d2 = −0.03; at hover 2.7 mN less thrust 46 mm / √2 off both axes: 8.8e-5 N m about roll
-and pitch, 5.3 rad/s² on its J, ~2.6 rad/s over the 0.5 s horizon if nothing compensated it), logged at a
+A Crazyflie 2.1 (brushless file) whose rotor 2 makes 3 % less thrust and drag torque per squared speed than
+the file says (``motor_imbalance`` d2 = −0.03; at hover 2.7 mN less thrust 46 mm / √2 off both axes: 8.8e-5 N m
+about roll and pitch, 5.3 rad/s² on its J, ~2.6 rad/s over the 0.5 s horizon if nothing compensated it), logged at a
 motion-capture rate (100 Hz) with the default noise.  Training: a 20 s random smooth trajectory under qr's LQR
 controller.  Scored: the crazyswarm figure-8 flown by the Crazyflie firmware's Lee controller (another
 trajectory type, another controller), rollout at h = 50 as ``qr evaluate`` scores it, each model's error
@@ -11,11 +11,11 @@ over ``rate_frozen``'s.
 
 The expectations come from what was put into the simulator:
 - rotor 2's written gain lies within ±2 of the standard errors the refinement states of −0.03, each other rotor's
-  within ±2 of its own of 0;
-- what the flight fixes of four per-rotor gains is three combinations (the rotor map's total thrust and the
-  point it acts through; the fourth, d1 + d3 − d2 − d4, changes neither at equal rotor speeds, which is why the
-  per-rotor standard errors are several times the error): those within a tenth of the hidden error (thrust
-  scale 1 − 0.03 / 4; thrust centre 0.03 × 32.5 mm / 3.97 = 0.246 mm off the hub centre along x and y);
+  within ±2 of its own of 0, and each within a tenth of the hidden error;
+- the rotor map's total thrust and the point it acts through within a tenth of the hidden error (thrust
+  scale 1 − 0.03 / 4; thrust centre 0.03 × 32.5 mm / 3.97 = 0.246 mm off the hub centre along x and y); the
+  fourth combination, d1 + d3 − d2 − d4, changes neither at equal rotor speeds and is fixed by the yaw torque
+  (the rotors' drag torques scale with their thrust);
 - on the figure-8 the written model predicts p, v, R and ω at h = 50 at or below ``rate_frozen``'s error, where
   the file's model does not (it is 6–8 × worse there: the test can fail).
 """
@@ -72,6 +72,8 @@ def test_the_refinement_writes_the_weak_rotor_within_its_band(run):
     centre = lambda s: s @ layout / s.sum()  # noqa: E731
     offset = np.abs(centre(true)).max()  # 0.246 mm
     assert np.abs(centre(written) - centre(true)).max() <= 0.1 * offset, (centre(written), centre(true))
+    # the yaw torque fixes the fourth combination: each rotor to a tenth of the hidden error
+    assert np.abs(written - true).max() <= 0.1 * np.abs(true - 1).max(), written
 
 
 def test_the_written_model_flies_a_trajectory_type_it_never_saw(run):

@@ -1,7 +1,7 @@
 """The refinement's rotor terms on synthetic flights with the mechanism hidden (qr.diagnose.refine).
 
-A per-rotor thrust error (rotor 1 makes 4 % more thrust per squared speed than the file says) is hidden in
-a Hummingbird flight; the refinement, told nothing (no effect named), admits the per-rotor gains on the
+A per-rotor error (rotor 1 makes 4 % more thrust and drag torque per squared speed than the file says) is hidden
+in a Hummingbird flight; the refinement, told nothing (no effect named), admits the per-rotor gains on the
 held-out windows, finds each rotor's thrust scale (C_T gain × (1 + d_i)) to a fraction of a per cent, reports
 the common mode (C_T against four equal d_i) as a direction the data cannot fix, and the model it writes
 flies at no more than rate_frozen's error at h = 50 on a flight of another random trajectory (another seed),
@@ -13,7 +13,7 @@ import pytest
 
 from conftest import VEHICLES
 
-D1 = 0.04  # rotor 1's thrust error (motor_imbalance d1)
+D1 = 0.04  # rotor 1's thrust and drag-torque error (motor_imbalance d1)
 H = 50
 
 
@@ -61,10 +61,10 @@ def test_a_per_rotor_thrust_error_is_found(refined):
     assert r.admission["motor_imbalance"][2], doc["statements"]  # admitted on the held-out windows
     p = {q.label: q for q in r.parameters}
     gain = p["C_T (gain)"].written
-    scales = [gain * (1 + p[f"C_T rotor {i} (d{i})"].written) for i in range(1, 5)]
+    scales = [gain * (1 + p[f"C_T, C_Q rotor {i} (d{i})"].written) for i in range(1, 5)]
     assert scales == pytest.approx([1 + D1, 1, 1, 1], abs=0.004), scales
     # C_T against four equal per-rotor gains: one term, reported as a direction the data cannot fix
-    common = [d for d in r.unconstrained if {f"C_T rotor {i} (d{i})" for i in range(1, 5)} <= dict(d.loadings).keys()]
+    common = [d for d in r.unconstrained if {f"C_T, C_Q rotor {i} (d{i})" for i in range(1, 5)} <= dict(d.loadings).keys()]
     assert common and any(s.startswith("The data cannot fix") for s in doc["statements"])
     # the written model keeps every value within its physical range
     assert all(q.physical[0] - 1e-12 <= q.written <= q.physical[1] + 1e-12 for q in r.parameters)
@@ -103,6 +103,6 @@ def test_the_band_draws_nothing_along_the_direction_the_data_cannot_fix(refined)
     bounds = np.array([r.parameters[i].bounds for i in idx])
     draws = bands.draw_parameters(written, cov, bounds, 200, seed=1)
     g = draws[:, labels.index("C_T (gain)")]
-    scales = np.array([g * (1 + draws[:, labels.index(f"C_T rotor {i} (d{i})")]) for i in range(1, 5)]).T
+    scales = np.array([g * (1 + draws[:, labels.index(f"C_T, C_Q rotor {i} (d{i})")]) for i in range(1, 5)]).T
     off = np.abs(scales - np.array([1 + D1, 1, 1, 1])).max(axis=1)
     assert np.mean(off <= 0.01) >= 0.9 and off.max() <= 0.05, np.quantile(off, [0.5, 0.9, 0.99])

@@ -113,12 +113,14 @@ def test_the_links_together_have_the_vehicles_mass_cg_and_inertia(tmp_path):
     for i, p in enumerate(plugins(root)):
         v = {e.tag: float(e.text) for e in p if e.tag.endswith(("Constant", "Coefficient"))}
         assert v["motorConstant"] == pytest.approx(CT * (1 + d[i]) / F**2, rel=1e-9)
-        # the yaw torque stays C_Q u², as in qr (motor_imbalance scales the thrust only)
-        assert v["momentConstant"] * v["motorConstant"] == pytest.approx(CQ / F**2, rel=1e-9)
+        # the rotor's drag torque with its thrust relative to the others', as in qr: C_Q (1 + d_i - mean d) u²
+        share = 1 + d[i] - sum(d) / 4
+        assert v["momentConstant"] * v["motorConstant"] == pytest.approx(CQ * share / F**2, rel=1e-9)
+        assert v["momentConstant"] == pytest.approx(CQ * share / (CT * (1 + d[i])), rel=1e-9)
         assert v["rotorDragCoefficient"] == pytest.approx(2e-7 / F, rel=1e-9)  # per rpm -> per rad/s
         assert v["rollingMomentCoefficient"] == 0  # flapping is not the rolling moment (a different axis)
         assert params[f"CA_ROTOR{i}_KM"][0] == pytest.approx(
-            -[-1, 1, -1, 1][i] * CQ / (CT * (1 + d[i])), rel=1e-6)
+            -[-1, 1, -1, 1][i] * CQ * share / (CT * (1 + d[i])), rel=1e-6)
     # PX4's positions are relative to the CG: x - rx, -(y - ry)
     assert params["CA_ROTOR0_PX"][0] == pytest.approx(A - 0.002, rel=1e-9)
     assert params["CA_ROTOR0_PY"][0] == pytest.approx(-(-A + 0.001), rel=1e-9)

@@ -80,9 +80,13 @@ def test_the_held_out_rollout_names_the_vehicle_files_it_compared(clean):
 
     docs = sorted((clean / "evaluation").glob("*/held_out/evaluation.json"))
     assert docs
+    # (a hybrid where the training diagnosis learned a remainder: the brushless set's; the payload set's one
+    # training flight may be refused as not described, and then carries none)
+    hybrid = json.loads((clean / "evaluation" / "brushless" / "held_out" / "evaluation.json").read_text())
+    assert "hybrid" in hybrid["labels"].values(), hybrid["labels"]
     for p in docs:
         doc = json.loads(p.read_text())
-        assert set(doc["labels"].values()) >= {"nominal", "extended", "hybrid"}, doc["labels"]
+        assert set(doc["labels"].values()) >= {"nominal", "extended"}, doc["labels"]
         for v in doc["vehicles"]:
             assert (clean.parent / v).is_file() or Path(v).is_file(), v  # not in a temporary folder
 

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from qr.stages.sweep_callback import end_orphaned_runs
+
 out = Path(snakemake.output[0]).parent
 cmd = [sys.executable, "-m", "qr.learn", "-m", f"sweep={snakemake.wildcards.sweep}",
        f"learn.dataset={snakemake.input.dataset}", f"learn.out={out}", f"hydra.sweep.dir={out / 'hydra'}",
@@ -23,6 +25,8 @@ with open(snakemake.log[0], "w") as log:
             proc.wait(timeout=120)
         except subprocess.TimeoutExpired:
             proc.kill()
+            proc.wait()
+        end_orphaned_runs(out)  # what a process of the sweep could not end itself
         raise
     if rc != 0:
         raise subprocess.CalledProcessError(rc, cmd)

@@ -32,7 +32,7 @@ COEFFICIENTS = ("inertia_error", "thrust_gain", "yaw_torque_gain", "actuator_del
 # each rotor's yaw-torque gain, the rotors' inertia (gyroscopic moment, momentum exchange), and, with blade
 # flapping named, its pitch coefficient over its roll one
 PROPERTIES = ("rotor_torque_gains", "rotor_inertia", "flapping_pitch_ratio")
-ROTOR_GAIN_RANGE = (0.7, 1.3)  # each rotor's C_Q over the file's (as motor_imbalance's ±30 % for C_T)
+ROTOR_GAIN_RANGE = (0.7, 1.3)  # each rotor's C_Q beyond motor_imbalance's share (as its ±30 %)
 FLAP_RATIO_RANGE = (0.5, 2.0)  # the pitch flapping coefficient over the roll one
 ROTOR_MASS_SHARE = 0.05  # a rotor (bell and propeller) weighs at most this share of the vehicle
 DISAGREE_Z = 2.0  # estimates this many combined standard errors apart disagree (two-sided 95 %)
@@ -43,7 +43,7 @@ LABELS = {("inertia_error", "dJxx"): "J_xx", ("inertia_error", "dJyy"): "J_yy", 
           ("actuator_delay", "delay_s"): "delay (s)", ("rotor_inertia", ""): "rotor inertia (kg m²)",
           ("flapping_pitch_ratio", ""): "flapping pitch/roll ratio",
           **{("rotor_torque_gains", str(i)): f"C_Q rotor {i + 1} (gain)" for i in range(8)},
-          **{("motor_imbalance", f"d{i + 1}"): f"C_T rotor {i + 1} (d{i + 1})" for i in range(8)},
+          **{("motor_imbalance", f"d{i + 1}"): f"C_T, C_Q rotor {i + 1} (d{i + 1})" for i in range(8)},
           ("cg_offset", "rx"): "CG x (m)", ("cg_offset", "ry"): "CG y (m)"}
 
 
@@ -1491,12 +1491,13 @@ def _meaning(p: Parameter, ratio: float | None, outside: bool) -> str:
         return ("The yaw response over the horizon differs from the one-step yaw torque balance: C_Q and Jzz enter "
                 "only as their ratio, and a yaw-rate damping the model lacks is fitted as C_Q.")
     if p.effect == "motor_imbalance":
-        return ("One rotor's thrust per squared speed differs from the others' over the horizon: a rotor or "
-                "propeller off, or its speed sensor's scale.")
+        return ("One rotor's thrust and drag torque per squared speed differ from the others' over the horizon: "
+                "a rotor or propeller off, or its speed sensor's scale.")
     if p.effect == "cg_offset":
         return "The thrust's line passes beside the CG: its torque, integrated over the horizon, moves the rates."
     if p.effect == "rotor_torque_gains":
-        return "One rotor's yaw torque per squared speed differs from the others': a propeller or motor off."
+        return ("One rotor's yaw torque per squared speed differs from the others' beyond its thrust's share: "
+                "a propeller whose torque and thrust do not scale together.")
     if p.effect == "rotor_inertia":
         return ("The rotors' angular momentum: a gyroscopic roll/pitch moment with the body rate and a yaw reaction "
                 "whenever the rotors change speed.")

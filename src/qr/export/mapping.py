@@ -66,7 +66,7 @@ class Plant:
     rotor_xy: np.ndarray  # (4, 2) m, rotor axes in the vehicle file's body frame (not yet relative to the CG)
     yaw_signs: np.ndarray  # (4,) sign of each rotor's reaction torque about body z (up)
     k_thrust: np.ndarray  # (4,) N/(rad/s)², per rotor (thrust_gain and motor_imbalance applied)
-    k_yaw: float  # N m/(rad/s)², yaw_torque_gain applied
+    k_yaw: np.ndarray  # (4,) N m/(rad/s)², per rotor (yaw_torque_gain and motor_imbalance applied)
     cg: np.ndarray  # (2,) m, CG relative to the rotor map's origin (cg_offset)
     tau_m: float  # s, motor time constant
     speed_min: float  # rad/s
@@ -100,9 +100,11 @@ def plant_of(vehicle) -> Plant:
     rm = vehicle.rotors
     scale = P[ps.P_SCALE]
     k_thrust = rm.thrust_coeff * scale / f**2
+    # motor_imbalance's share of each rotor's yaw gain (rotor_torque_gains, the refinement's, are not carried)
+    k_yaw = rm.torque_coeff * P[ps.P_CQGAIN] * P[ps.P_YAW_GAIN] / vehicle.rotor_torque_gains / f**2
     m = float(P[ps.P_MASS])
     return Plant(name=vehicle.name, mass=m, inertia=P[ps.P_J].copy(), rotor_xy=rm.positions.copy(),
-                 yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=rm.torque_coeff * P[ps.P_CQGAIN] / f**2,
+                 yaw_signs=rm.yaw_signs.copy(), k_thrust=k_thrust, k_yaw=k_yaw,
                  cg=P[ps.P_CG].copy(), tau_m=float(P[ps.P_TAU]), speed_min=vehicle.rotor_speed_min * f,
                  speed_max=vehicle.rotor_speed_max * f, hover=math.sqrt(m * 9.81 / float(np.sum(k_thrust))),
                  P=P, unit=f, hub_z=vehicle.hub_z)
@@ -158,18 +160,32 @@ def fx_inertia(vehicle) -> list[str]:
 
 def fx_k_thrust(vehicle, mean: bool = False) -> str:
     """Rotor i's thrust per (rad/s)² (``mean``: their mean)."""
-    out = "C_T"
-    if has(vehicle, "thrust_gain"):
-        out += " · thrust_gain.gain"
-    if has(vehicle, "motor_imbalance"):
-        n = vehicle.rotors.n
-        out += (" · (1 + (" + " + ".join(f"d_{i}" for i in range(1, n + 1)) + ") / n)") if mean else " · (1 + d_i)"
-    return out + " / f²"
+    out = "C_T" + (" · thrust_gain.gain" if has(vehicle, "thrust_gain") else "")
+    return out + _imbalance(vehicle, mean) + " / f²"
 
 
-def fx_k_yaw(vehicle) -> str:
-    """C_Q per (rad/s)², the yaw-torque gain applied."""
-    return "C_Q" + (" · yaw_torque_gain.gain" if has(vehicle, "yaw_torque_gain") else "") + " / f²"
+def _imbalance(vehicle, mean: bool) -> str:
+    """motor_imbalance's factor on rotor i's C_T (``mean``: on their mean)."""
+    if not has(vehicle, "motor_imbalance"):
+        return ""
+    return f" · (1 + {fx_d_mean(vehicle)})" if mean else " · (1 + d_i)"
+
+
+def fx_d_mean(vehicle) -> str:
+    """The d_i's mean, as a formula."""
+    n = vehicle.rotors.n
+    return "(" + " + ".join(f"d_{i}" for i in range(1, n + 1)) + ") / n"
+
+
+def fx_yaw_share(vehicle) -> str:
+    """motor_imbalance's factor on rotor i's C_Q: its share relative to the others' (their mean is 1)."""
+    return f" · (1 + d_i − {fx_d_mean(vehicle)})" if has(vehicle, "motor_imbalance") else ""
+
+
+def fx_k_yaw(vehicle, mean: bool = False) -> str:
+    """Rotor i's C_Q per (rad/s)², the yaw-torque gain and the imbalance applied (``mean``: their mean)."""
+    out = "C_Q" + (" · yaw_torque_gain.gain" if has(vehicle, "yaw_torque_gain") else "")
+    return out + ("" if mean else fx_yaw_share(vehicle)) + " / f²"
 
 
 def fx_cg(vehicle) -> tuple[str, str]:

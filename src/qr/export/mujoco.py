@@ -44,10 +44,10 @@ def mjcf(vehicle, pp: mp.Plant, path: str, version: str) -> str:
     lines += ["    </body>", "  </worldbody>", "  <actuator>"]
     top = g(pp.speed_max**2)
     low = g(pp.speed_min**2)
-    for i, (k, s) in enumerate(zip(pp.k_thrust, pp.yaw_signs), 1):
+    for i, (k, kq, s) in enumerate(zip(pp.k_thrust, pp.k_yaw, pp.yaw_signs), 1):
         lines.append(f'    <motor name="thrust{i}" site="rotor{i}" gear="0 0 {g(k)} 0 0 0" '
                      f'ctrllimited="true" ctrlrange="{low} {top}"/>')
-        lines.append(f'    <motor name="yaw{i}" site="rotor{i}" gear="0 0 0 0 0 {g(s * pp.k_yaw)}" '
+        lines.append(f'    <motor name="yaw{i}" site="rotor{i}" gear="0 0 0 0 0 {g(s * kq)}" '
                      f'ctrllimited="true" ctrlrange="{low} {top}"/>')
     lines += ["  </actuator>", "</mujoco>"]
     return "\n".join(lines) + "\n"
@@ -191,7 +191,7 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                     ", ".join(mp.fx_inertia(vehicle))),
         "thrust_coeff": ("actuator thrust_i@gear[2]", ", ".join(g(k) for k in pp.k_thrust) + " N/(rad/s)²",
                          mp.fx_k_thrust(vehicle)),
-        "torque_coeff": ("actuator yaw_i@gear[5]", ", ".join(g(s * pp.k_yaw) for s in pp.yaw_signs)
+        "torque_coeff": ("actuator yaw_i@gear[5]", ", ".join(g(s * kq) for s, kq in zip(pp.yaw_signs, pp.k_yaw))
                          + " N m/(rad/s)²", "s_i · " + mp.fx_k_yaw(vehicle),
                          f"C_Q per {vehicle.rotor_speed_unit}² → per (rad/s)²: ÷ f²; the sign: yaw_sign"),
     })
@@ -219,10 +219,12 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
                            "inertia rows)"))
         elif name in ("thrust_gain", "motor_imbalance"):
             out.append(Row(name, val, "actuator thrust_i@gear[2]", ", ".join(g(k) for k in pp.k_thrust), EXACT,
-                           "each rotor's C_T × gain (1 + d_i) / f²; its yaw gear unchanged, as in qr",
+                           "each rotor's C_T × gain (1 + d_i) / f²" + ("; its yaw gear C_Q (1 + d_i − mean d) / f², as "
+                                                                      "in qr" if name == "motor_imbalance" else ""),
                            formula=mp.fx_k_thrust(vehicle)))
         elif name == "yaw_torque_gain":
-            out.append(Row(name, val, "actuator yaw_i@gear[5]", ", ".join(g(s * pp.k_yaw) for s in pp.yaw_signs),
+            out.append(Row(name, val, "actuator yaw_i@gear[5]",
+                           ", ".join(g(s * kq) for s, kq in zip(pp.yaw_signs, pp.k_yaw)),
                            EXACT, "yaw_sign gain C_Q / f²", formula="s_i · " + mp.fx_k_yaw(vehicle)))
         elif name == "cg_offset":
             out.append(Row(name, val, "body/inertial@pos", f"{g(pp.cg[0])} {g(pp.cg[1])} 0", EXACT,

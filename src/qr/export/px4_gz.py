@@ -93,10 +93,10 @@ def plugin_values(pp: mp.Plant) -> list[dict]:
     """The MulticopterMotorModel elements of each rotor, in the x500's order."""
     P = pp.P
     out = []
-    for i, (k, s) in enumerate(zip(pp.k_thrust, pp.yaw_signs)):
+    for i, (k, kq, s) in enumerate(zip(pp.k_thrust, pp.k_yaw, pp.yaw_signs)):
         out.append({"jointName": f"rotor_{i}_joint", "linkName": f"rotor_{i}", "turningDirection": turning(s),
                     "timeConstantUp": g(pp.tau_m), "timeConstantDown": g(pp.tau_m),
-                    "maxRotVelocity": g(pp.speed_max), "motorConstant": g(k), "momentConstant": g(pp.k_yaw / k),
+                    "maxRotVelocity": g(pp.speed_max), "motorConstant": g(k), "momentConstant": g(kq / k),
                     "commandSubTopic": "command/motor_speed", "motorNumber": str(i),
                     "rotorDragCoefficient": g(P[ps.P_RDRAG] / pp.unit), "rollingMomentCoefficient": "0",
                     "rotorVelocitySlowdownSim": str(SLOWDOWN), "motorType": "velocity"})
@@ -106,9 +106,9 @@ def plugin_values(pp: mp.Plant) -> list[dict]:
 def px4_params(pp: mp.Plant) -> list[tuple[str, float | int, int]]:
     """(name, value, type) of the PX4 parameters that must agree with the model."""
     out: list[tuple[str, float | int, int]] = [("CA_ROTOR_COUNT", len(pp.yaw_signs), PARAM_INT32)]
-    for i, ((x, y), k, s) in enumerate(zip(pp.rotor_xy, pp.k_thrust, pp.yaw_signs)):
+    for i, ((x, y), k, kq, s) in enumerate(zip(pp.rotor_xy, pp.k_thrust, pp.k_yaw, pp.yaw_signs)):
         out += [(f"CA_ROTOR{i}_PX", x - pp.cg[0], PARAM_REAL32), (f"CA_ROTOR{i}_PY", -(y - pp.cg[1]), PARAM_REAL32),
-                (f"CA_ROTOR{i}_PZ", 0.0, PARAM_REAL32), (f"CA_ROTOR{i}_KM", -s * pp.k_yaw / k, PARAM_REAL32)]
+                (f"CA_ROTOR{i}_PZ", 0.0, PARAM_REAL32), (f"CA_ROTOR{i}_KM", -s * kq / k, PARAM_REAL32)]
     for i in range(len(pp.yaw_signs)):
         out += [(f"SIM_GZ_EC_FUNC{i + 1}", 101 + i, PARAM_INT32),
                 (f"SIM_GZ_EC_MIN{i + 1}", int(round(pp.speed_min)), PARAM_INT32),
@@ -141,10 +141,10 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
 
 
 def _moment_formula(vehicle) -> str:
-    """momentConstant = k_yaw / k_i: C_Q / C_T, the gains and the imbalance of rotor i (f² cancels)."""
+    """momentConstant = k_yaw_i / k_i: C_Q / C_T with the gains and the imbalance of rotor i (f² cancels)."""
     k_i = mp.fx_k_thrust(vehicle).removesuffix(" / f²")
-    return f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / ({k_i})" if k_i != "C_T" else \
-        f"{mp.fx_k_yaw(vehicle).removesuffix(' / f²')} / C_T"
+    q = mp.fx_k_yaw(vehicle).removesuffix(" / f²")
+    return f"{q} / ({k_i})" if k_i != "C_T" else f"{q} / C_T"
 
 
 def _key_rows(vehicle, pp: mp.Plant, plug: list[dict]) -> list[Row]:
@@ -181,8 +181,8 @@ def _key_rows(vehicle, pp: mp.Plant, plug: list[dict]) -> list[Row]:
             ", ".join(f"({g(x - pp.cg[0])}, {g(-(y - pp.cg[1]))})" for x, y in pp.rotor_xy), EXACT,
             "PX4 in FRD relative to the CG: PX = x - rx, PY = -(y - ry)",
             formula=f"({mp.fx_minus('x_i', rx)}, −({mp.fx_minus('y_i', ry)}))"),
-        Row("torque_coeff sign", "yaw_sign", "CA_ROTOR<i>_KM", ", ".join(g(-s * pp.k_yaw / k) for k, s in
-            zip(pp.k_thrust, pp.yaw_signs)), EXACT, "PX4's moment CT p × a - CT KM a, a = (0, 0, -1) FRD: "
+        Row("torque_coeff sign", "yaw_sign", "CA_ROTOR<i>_KM", ", ".join(g(-s * kq / k) for k, kq, s in
+            zip(pp.k_thrust, pp.k_yaw, pp.yaw_signs)), EXACT, "PX4's moment CT p × a - CT KM a, a = (0, 0, -1) FRD: "
             "KM = -yaw_sign C_Q / C_T (positive for ccw, as PX4 documents)", formula=f"−s_i · {moment}"),
         Row("motor_time_constant", g(vehicle.motor_time_constant) + " s", "timeConstantUp, timeConstantDown",
             f"{g(pp.tau_m)}, {g(pp.tau_m)} s", EXACT, "qr's lag is the same up and down", formula="τ_m, τ_m"),
@@ -210,8 +210,8 @@ def _effect_row(name: str, vehicle, pp: mp.Plant, plug: list[dict], size: dict) 
     elif name in ("thrust_gain", "motor_imbalance"):
         return Row(name, val, "motorConstant (per rotor); momentConstant, CA_ROTOR<i>_KM",
                    ", ".join(p["motorConstant"] for p in plug), EXACT,
-                   "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q / (gain (1 + d_i) C_T) "
-                   "keeps the yaw torque qr's", formula=mp.fx_k_thrust(vehicle))
+                   "motorConstant_i = gain (1 + d_i) C_T / f²; momentConstant_i = C_Q (1 + d_i − mean d) / (gain (1 + d_i) "
+                   "C_T): gz's drag torque, momentConstant × thrust, is qr's", formula=mp.fx_k_thrust(vehicle))
     elif name == "yaw_torque_gain":
         return Row(name, val, "momentConstant; CA_ROTOR<i>_KM", ", ".join(p["momentConstant"] for p in plug),
                    EXACT, "gain C_Q / C_T", formula=_moment_formula(vehicle))

@@ -35,7 +35,7 @@ def quad_params(pp: mp.Plant) -> dict:
         "rI": [0.0, 0.0, 0.0],
         "rotor_radius": display_radius(pp),
         "c_Dx": P[ps.P_QUAD.start], "c_Dy": P[ps.P_QUAD.start + 1], "c_Dz": P[ps.P_QUAD.start + 2],
-        "k_eta": float(np.mean(pp.k_thrust)), "k_m": pp.k_yaw,
+        "k_eta": float(np.mean(pp.k_thrust)), "k_m": float(np.mean(pp.k_yaw)),
         "k_d": P[ps.P_RDRAG] / pp.unit, "k_z": 0.0, "k_h": P[ps.P_TLIFT],
         "k_flap": -P[ps.P_FLAP] / (4 * pp.hover),
         "tau_m": pp.tau_m, "rotor_speed_min": pp.speed_min, "rotor_speed_max": pp.speed_max,
@@ -62,6 +62,7 @@ def qr_terms(vehicle, pp: mp.Plant) -> dict:
     rem = P[ps.P_REM].reshape(3, 11) if P[ps.P_REM_ON] else None
     return {
         "thrust_scale": list(pp.k_thrust / k_eta),  # each rotor's thrust / (k_eta ω²)
+        "torque_scale": list(pp.k_yaw / np.mean(pp.k_yaw)),  # each rotor's drag torque / (k_m ω²)
         "linear_drag": list(P[ps.P_LIN]),  # N s/m
         "quadratic_drag": list(P[ps.P_QUAD]),  # N s²/m²
         "rotor_drag": P[ps.P_RDRAG] / pp.unit,  # N s/m per rad/s
@@ -145,6 +146,7 @@ class QrMultirotor(Multirotor):
         super().__init__(quad_params if params is None else params,
                          hover_state() if initial_state is None else initial_state, **kwargs)
         self._scale = np.asarray(QR_TERMS["thrust_scale"], float)
+        self._torque_scale = np.asarray(QR_TERMS["torque_scale"], float)
 
     def qr_wrench(self, s):
         """(world force, body force, body moment) qr's model adds to RotorPy's at the packed state s."""
@@ -156,6 +158,7 @@ class QrMultirotor(Multirotor):
         extra = (self._scale - 1.0) * thrust
         F = np.array([0.0, 0.0, extra.sum()])
         M = np.cross(self.rotor_geometry, np.outer(extra, [0.0, 0.0, 1.0])).sum(axis=0)
+        M[2] += np.sum((self._torque_scale - 1.0) * self.rotor_dir * self.k_m * speeds**2)
         if self.exact_aero:
             F -= t["linear_drag"] * vb + t["quadratic_drag"] * np.abs(vb) * vb
             F[:2] -= t["rotor_drag"] * speeds.sum() * vb[:2]
@@ -207,7 +210,18 @@ def rows(vehicle, pp: mp.Plant) -> list[Row]:
     qp, size = quad_params(pp), mp.sizes(pp)
     effect_rows = (_rotor_effect_row(name, vehicle, pp, qp, size) or _body_effect_row(name, vehicle, pp, qp, size)
                    for name in mp.present(vehicle))
-    return [*_key_rows(vehicle, pp, qp), *(r for r in effect_rows if r is not None), *_learned_rows(vehicle, pp, size)]
+    return [*_key_rows(vehicle, pp, qp), *(r for r in effect_rows if r is not None), *_imbalance_torque(vehicle, pp),
+            *_learned_rows(vehicle, pp, size)]
+
+
+def _imbalance_torque(vehicle, pp: mp.Plant) -> list[Row]:
+    """motor_imbalance's drag-torque part: each rotor's relative to the others' (their mean stays k_m)."""
+    if not mp.has(vehicle, "motor_imbalance"):
+        return []
+    return [Row("motor_imbalance (drag torque)", "d_i", "QR_TERMS['torque_scale']",
+                _vec(qr_terms(vehicle, pp)["torque_scale"]), EXACT,
+                "QrMultirotor adds each rotor's (torque_scale_i - 1) rotor_directions_i k_m ω_i² about body z; the "
+                "mean drag torque stays k_m's", formula=f"1 + d_i − {mp.fx_d_mean(vehicle)}")]
 
 
 def _key_rows(vehicle, pp: mp.Plant, qp: dict) -> list[Row]:
@@ -223,7 +237,9 @@ def _key_rows(vehicle, pp: mp.Plant, qp: dict) -> list[Row]:
         "thrust_coeff": ("k_eta", g(qp["k_eta"]) + " N/(rad/s)²", mp.fx_k_thrust(vehicle, mean=True),
                          "the rotors' mean thrust per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
                                                                     if mp.has(vehicle, "motor_imbalance") else "")),
-        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle)),
+        "torque_coeff": ("k_m", g(qp["k_m"]) + " N m/(rad/s)²", mp.fx_k_yaw(vehicle, mean=True),
+                         "the rotors' drag torque per (rad/s)²" + ("; each rotor's part: motor_imbalance row"
+                                                                    if mp.has(vehicle, "motor_imbalance") else "")),
     })
     out += [
         Row("layout (rotor x, y), hub_z", ", ".join(f"({g(x)}, {g(y)})" for x, y in vehicle.rotors.positions)
@@ -263,7 +279,7 @@ def _rotor_effect_row(name: str, vehicle, pp: mp.Plant, qp: dict, size: dict) ->
                    formula=mp.fx_k_thrust(vehicle, mean=True))
     elif name == "yaw_torque_gain":
         return Row(name, val, "k_m", g(qp["k_m"]), EXACT, "k_m = gain C_Q / f²",
-                   formula=mp.fx_k_yaw(vehicle))
+                   formula=mp.fx_k_yaw(vehicle, mean=True))
     elif name == "cg_offset":
         return Row(name, val, "rotor_pos", "(shifted)", EXACT,
                    "rotor_pos_i = (x_i - rx, y_i - ry, hub_z): thrust moment Γ - c × T = the catalog's [-ry T, rx T, 0]")
@@ -271,7 +287,7 @@ def _rotor_effect_row(name: str, vehicle, pp: mp.Plant, qp: dict, size: dict) ->
         ds = " + ".join(f"d_{i}" for i in range(1, n + 1))
         return Row(name, val, "k_eta (mean) + QR_TERMS['thrust_scale']",
                    _vec(qr_terms(vehicle, pp)["thrust_scale"]), EXACT,
-                   "QrMultirotor adds each rotor's (scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
+                   "QrMultirotor adds each rotor's (thrust_scale_i - 1) k_eta ω_i² at its hub; Multirotor(quad_params) "
                    "alone has their mean k_eta", formula=f"n · (1 + d_i) / (n + {ds})")
     elif name == "rotor_drag":
         both = P[ps.P_RDM] == P[ps.P_RDRAG]  # named with its moment (one k): RotorPy's H-force at the hubs is both

@@ -82,7 +82,9 @@ def _add_effect(P: np.ndarray, n: str, k: dict) -> None:
     elif n == "ground_effect":
         P[P_GE] += k["k"]
     elif n == "motor_imbalance":
-        P[P_SCALE] *= 1.0 + np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
+        d = np.array([k["d1"], k["d2"], k["d3"], k["d4"]])
+        P[P_SCALE] *= 1.0 + d
+        P[P_YAW_GAIN] *= 1.0 + d - d.mean()  # its drag torque with its thrust, relative to the others (effects)
     elif n == "cg_offset":
         P[P_CG] += [k["rx"], k["ry"]]
     elif n == "torque_bias":

@@ -79,6 +79,7 @@ class RotorpyFlight:
     trajectory: Circle = field(default_factory=Circle)
     rtol: float = 1e-5  # RotorPy's integrator (RK45) per step: positions within 2e-7 m of rtol 1e-9's, far below the log's noise
     wind: tuple = (0.0, 0.0, 0.0)  # m/s, world: a steady wind (RotorPy keeps its state's wind; its aerodynamics act on the airspeed)
+    rotor_gains: tuple = (1.0, 1.0, 1.0, 1.0)  # each rotor's thrust and drag torque over the file's (a weak rotor)
 
 
 def fly(qp: dict, cfg: RotorpyFlight) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -95,8 +96,9 @@ def fly(qp: dict, cfg: RotorpyFlight) -> tuple[pd.DataFrame, pd.DataFrame]:
     state = {"x": np.asarray(flat["x"], float), "v": np.asarray(flat["x_dot"], float),
              "q": np.array([0.0, 0.0, 0.0, 1.0]), "w": np.zeros(3), "wind": np.asarray(cfg.wind, float),
              "rotor_speeds": w0}
-    vehicle = Multirotor(qp, initial_state=state, aero=cfg.aero,
-                         integrator_kwargs={"method": "RK45", "rtol": cfg.rtol, "atol": 1e-9})
+    kind = Multirotor if all(g == 1.0 for g in cfg.rotor_gains) else _with_rotor_gains(Multirotor, cfg.rotor_gains)
+    vehicle = kind(qp, initial_state=state, aero=cfg.aero,
+                   integrator_kwargs={"method": "RK45", "rtol": cfg.rtol, "atol": 1e-9})
     controller = SE3Control(qp)
     n = int(round(cfg.duration / cfg.dt))
     rows = np.empty((n + 1, 12))
@@ -111,3 +113,20 @@ def fly(qp: dict, cfg: RotorpyFlight) -> tuple[pd.DataFrame, pd.DataFrame]:
     qr_vehicle = vehicle_from_dict(vehicle_dict(qp, "rotorpy"))
     flight = add_noise(truth, qr_vehicle, NoiseConfig(), np.random.default_rng([cfg.seed, 27]))
     return flight, truth
+
+
+def _with_rotor_gains(multirotor: type, gains: tuple) -> type:
+    """RotorPy's ``Multirotor`` whose rotor i makes ``gains[i]`` of its thrust ``k_eta ω²`` and of its drag
+    torque ``k_m ω²`` (a weak or damaged rotor: the propeller's torque scales with its thrust); RotorPy has
+    one ``k_eta`` for all rotors."""
+    extra_share = np.asarray(gains, float) - 1.0
+
+    class WithRotorGains(multirotor):
+        def compute_body_wrench(self, body_rates, rotor_speeds, body_airspeed_vector):
+            force, moment = super().compute_body_wrench(body_rates, rotor_speeds, body_airspeed_vector)
+            extra = extra_share * self.k_eta * rotor_speeds**2
+            moment = moment + np.cross(self.rotor_geometry, np.outer(extra, [0.0, 0.0, 1.0])).sum(axis=0)
+            moment[2] += np.sum(extra_share * self.rotor_dir * self.k_m * rotor_speeds**2)
+            return force + np.array([0.0, 0.0, extra.sum()]), moment
+
+    return WithRotorGains

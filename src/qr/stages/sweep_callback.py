@@ -67,6 +67,14 @@ class SweepCallback(Callback):
         if exc is None:
             cm.__exit__(None, None, None)
         else:
+            from .. import tracking
+
+            try:  # a worker the pool killed on Ctrl-C leaves its job's run RUNNING: end it before the parent
+                tracking.reap_sweep(self._run.id, wait_s=10.0)
+            except Exception as e:  # never let it keep the parent open
+                import logging
+
+                logging.getLogger("qr.tracking").warning("could not end the sweep's jobs' runs: %s", e)
             try:
                 cm.__exit__(type(exc), exc, None)
             except type(exc):
@@ -77,3 +85,12 @@ class SweepCallback(Callback):
 
     def __setstate__(self, state):
         self.__init__()
+
+
+def end_orphaned_runs(out, wait_s: float = 30.0) -> list[str]:
+    """After the sweep writing into ``out`` was interrupted and its process has ended: the runs its processes
+    left RUNNING (killed before they could end them) end KILLED (:func:`qr.tracking.reap_sweep`)."""
+    from .. import tracking
+
+    parent = parent_id(out)
+    return tracking.reap_sweep(parent, wait_s) if parent else []
