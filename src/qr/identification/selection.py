@@ -20,8 +20,8 @@ from .edge import EDGE, Margins, margin, rank_key
 from .normal_equations import BlockStats, Columns, CrossValidator, at_bound, fit, solve
 
 # Never named together (spec): the same term in force (gain = m/(m + dm)), and a C_T error is an
-# all-equal motor imbalance in force and roll/pitch torque (the imbalance scales the rotors' drag torque
-# too), so a motor imbalance's mean is a mass error in force.
+# all-equal motor imbalance in every row (the imbalance's drag-torque share, 1 + d_i - mean d, has no common
+# mode), so a motor imbalance's mean is a mass error in force.
 # J_z α_z = C_Q-torque makes a C_Q error an inertia error about z: named together their z parts would
 # split one term arbitrarily.
 SAME_TERM = (frozenset({"thrust_gain", "mass_error"}), frozenset({"thrust_gain", "motor_imbalance"}),
